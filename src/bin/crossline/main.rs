@@ -1,0 +1,71 @@
+//! The `crossline` command line. Each subcommand lives in `src/bin/crossline/<name>.rs`
+//! with its clap arguments and its `run`; library errors become `anyhow` errors with
+//! context here and nowhere else.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod compare;
+mod extract;
+mod reconstruct;
+mod simulate;
+
+/// Turn a fixed camera and a hand-held cross line laser into a 3D scanner, with no
+/// calibration of the laser.
+///
+/// A typical first session, without a camera:
+///
+///   crossline simulate --scene room --frames 120 --out sim
+///   crossline reconstruct --input sim --camera sim/camera.yml --out cloud.ply
+///   crossline compare cloud.ply --truth sim
+#[derive(Parser)]
+#[command(name = "crossline", version, about, long_about, verbatim_doc_comment)]
+struct Cli {
+    /// More log output (-v debug, -vv trace); RUST_LOG overrides.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    Simulate(simulate::Args),
+    Compare(compare::Args),
+    Extract(extract::Args),
+    Reconstruct(reconstruct::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_logging(cli.verbose);
+    let result = match cli.command {
+        Command::Simulate(args) => simulate::run(args),
+        Command::Compare(args) => compare::run(args),
+        Command::Extract(args) => extract::run(args),
+        Command::Reconstruct(args) => reconstruct::run(args),
+    };
+    match result {
+        Ok(code) => code,
+        Err(err) => {
+            eprintln!("crossline: error: {err:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn init_logging(verbose: u8) {
+    let default = match verbose {
+        0 => "info",
+        1 => "debug",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .init();
+}

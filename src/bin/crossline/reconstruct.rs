@@ -1,0 +1,11 @@
+//! `crossline reconstruct` (placeholder, filled by its owner).
+
+use std::process::ExitCode;
+
+/// (placeholder)
+#[derive(clap::Args)]
+pub struct Args {}
+
+pub fn run(_args: Args) -> anyhow::Result<ExitCode> {
+    anyhow::bail!("`crossline reconstruct` is not implemented yet")
+}

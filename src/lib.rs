@@ -1,0 +1,35 @@
+//! crossline: a 3D scanner from a fixed camera and a hand-held cross line laser, in air
+//! and under water, with no calibration of the laser (Bleier & Nüchter, "Low-Cost 3D
+//! Laser Scanning in Air or Water Using Self-Calibrating Structured Light", ISPRS
+//! Archives XLII-2/W3, 2017).
+//!
+//! The two laser planes of the cross are written `v · X = 1` in camera coordinates
+//! (OpenCV axes: +X right, +Y down, +Z forward). Curves of different frames cross on
+//! the fixed image plane; every crossing `u = (x, y, 1)` gives `(v_i − v_j) · u = 0`,
+//! which fixes all planes up to a 4-DOF family that the orthogonality of each cross
+//! reduces to one global scale.
+//!
+//! # Layout
+//! The modules follow the data:
+//! - [`camera`]: intrinsics, OpenCV distortion, point undistortion.
+//! - [`camera_file`]: OpenCV `FileStorage` YAML, ROS `camera_info` and TOML readers/writers.
+//! - [`simulate`]: analytic scenes, the hand-held projector, image formation, ground truth.
+//! - [`extract`]: background model, Steger ridge detector, colour classes, linking.
+//! - [`intersect`]: spatial index over curve segments, crossing points.
+//! - [`solve`]: coplanarity system, gauge, orthogonality, robust re-solve, extension.
+//! - [`cloud`]: triangulation, rejection, colour.
+//! - [`ply`]: PLY point cloud reading and writing.
+//! - [`compare`]: cloud-to-reference and cloud-to-truth accuracy evaluation.
+//! - [`pfm`]: Portable Float Map I/O for depth maps.
+
+pub mod camera;
+pub mod camera_file;
+pub mod cloud;
+pub mod compare;
+pub mod error;
+pub mod extract;
+pub mod intersect;
+pub mod pfm;
+pub mod ply;
+pub mod simulate;
+pub mod solve;

@@ -1,0 +1,3 @@
+//! Integration tests: the real `crossline` binary on real files.
+
+mod util;
