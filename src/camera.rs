@@ -187,7 +187,10 @@ impl Camera {
     #[inline]
     pub fn pixel_from_normalized(&self, x: f64, y: f64) -> [f64; 2] {
         let (xd, yd) = self.distortion.distort(x, y);
-        [self.fx * xd + self.skew * yd + self.cx, self.fy * yd + self.cy]
+        [
+            self.fx * xd + self.skew * yd + self.cx,
+            self.fy * yd + self.cy,
+        ]
     }
 
     /// Distorted normalised coordinates of a pixel (the camera matrix undone, the lens not).
@@ -342,6 +345,8 @@ mod tests {
         let px = cam.pixel_from_camera(&p).expect("in front");
         let ray = cam.ray_from_pixel(px[0], px[1]).expect("ray");
         assert!((ray * 2.0 - p).norm() < 1e-9);
-        assert!(cam.pixel_from_camera(&Vector3::new(0.0, 0.0, -1.0)).is_none());
+        assert!(cam
+            .pixel_from_camera(&Vector3::new(0.0, 0.0, -1.0))
+            .is_none());
     }
 }
