@@ -1,1 +1,375 @@
-//! (placeholder, filled by its owner)
+//! Triangulation of curve points on their solved laser planes, the rejection of points
+//! that cannot be trusted, colour, and the global scale.
+//!
+//! A curve point with undistorted normalised coordinates `u = (x, y, 1)` on the plane
+//! `v · X = 1` lies at depth `Z = 1 / (v · u)` and position `X = Z · u`. The depth is
+//! ill-conditioned where the viewing ray grazes the plane (`v · u → 0` relative to
+//! `|v| |u|`), and meaningless where `v · u ≤ 0` (behind the camera); both are rejected
+//! here. Curves whose planes disagree at their crossings are the solver's business; this
+//! module only triangulates what it is given.
+//!
+//! Self-calibration leaves one global scale open; [`ScaleMode`] says how the user fixes
+//! it, and [`scale_for`] turns that into a factor.
+
+use image::RgbImage;
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use crate::ply::Cloud;
+
+/// What the triangulation keeps.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TriangulateParams {
+    /// Rays closer than this angle to their laser plane are dropped (degrees): their
+    /// depth error grows as 1/sin of this angle.
+    pub min_ray_plane_angle_deg: f64,
+}
+
+impl Default for TriangulateParams {
+    fn default() -> Self {
+        Self {
+            min_ray_plane_angle_deg: 3.0,
+        }
+    }
+}
+
+/// Counts of what triangulation rejected.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct TriangulateStats {
+    pub kept: usize,
+    pub grazing: usize,
+    pub behind_camera: usize,
+}
+
+impl TriangulateStats {
+    pub fn add(&mut self, other: &TriangulateStats) {
+        self.kept += other.kept;
+        self.grazing += other.grazing;
+        self.behind_camera += other.behind_camera;
+    }
+}
+
+/// Where a ray `u = (x, y, 1)` meets the plane `v · X = 1`, or why it is refused.
+#[inline]
+pub fn triangulate(
+    plane: &Vector3<f64>,
+    x: f64,
+    y: f64,
+    min_sin: f64,
+) -> Result<Vector3<f64>, Rejection> {
+    let u = Vector3::new(x, y, 1.0);
+    let dot = plane.dot(&u);
+    if dot <= 0.0 {
+        return Err(Rejection::BehindCamera);
+    }
+    if dot < min_sin * plane.norm() * u.norm() {
+        return Err(Rejection::Grazing);
+    }
+    Ok(u / dot)
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Rejection {
+    BehindCamera,
+    Grazing,
+}
+
+/// The points of one extracted curve, as triangulation needs them.
+#[derive(Clone, Copy, Debug)]
+pub struct CurvePoints<'a> {
+    pub frame: u32,
+    pub laser: u8,
+    /// Undistorted normalised coordinates.
+    pub points: &'a [[f64; 2]],
+    /// The same points in distorted pixels (for colour).
+    pub points_px: &'a [[f32; 2]],
+}
+
+/// Appends the points of one curve to `cloud`, coloured from `colour_source` (the
+/// laser-free background) at each point's distorted pixel.
+pub fn push_curve(
+    cloud: &mut Cloud,
+    plane: &Vector3<f64>,
+    curve: CurvePoints<'_>,
+    colour_source: Option<&RgbImage>,
+    params: &TriangulateParams,
+) -> TriangulateStats {
+    let CurvePoints {
+        frame,
+        laser,
+        points,
+        points_px,
+    } = curve;
+    let min_sin = params.min_ray_plane_angle_deg.to_radians().sin();
+    let mut stats = TriangulateStats::default();
+    for (i, &[x, y]) in points.iter().enumerate() {
+        match triangulate(plane, x, y, min_sin) {
+            Ok(p) => {
+                cloud.points.push([p.x as f32, p.y as f32, p.z as f32]);
+                if let Some(colors) = cloud.colors.as_mut() {
+                    let rgb = match (colour_source, points_px.get(i)) {
+                        (Some(img), Some(px)) => sample_rgb(img, px[0], px[1]),
+                        _ => [255, 255, 255],
+                    };
+                    colors.push(rgb);
+                }
+                if let Some(frames) = cloud.frames.as_mut() {
+                    frames.push(frame);
+                }
+                if let Some(lasers) = cloud.lasers.as_mut() {
+                    lasers.push(laser);
+                }
+                stats.kept += 1;
+            }
+            Err(Rejection::Grazing) => stats.grazing += 1,
+            Err(Rejection::BehindCamera) => stats.behind_camera += 1,
+        }
+    }
+    stats
+}
+
+/// Bilinear colour at a sub-pixel position (pixel centres at integer coordinates),
+/// clamped at the border.
+pub fn sample_rgb(img: &RgbImage, u: f32, v: f32) -> [u8; 3] {
+    let (w, h) = (img.width() as i64, img.height() as i64);
+    if w == 0 || h == 0 {
+        return [0, 0, 0];
+    }
+    let u = u.clamp(0.0, (w - 1) as f32);
+    let v = v.clamp(0.0, (h - 1) as f32);
+    let (x0, y0) = (u.floor() as i64, v.floor() as i64);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (fx, fy) = (u - x0 as f32, v - y0 as f32);
+    let at = |x: i64, y: i64| img.get_pixel(x as u32, y as u32).0;
+    let (a, b, c, d) = (at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1));
+    let mut out = [0u8; 3];
+    for k in 0..3 {
+        let top = a[k] as f32 * (1.0 - fx) + b[k] as f32 * fx;
+        let bottom = c[k] as f32 * (1.0 - fx) + d[k] as f32 * fx;
+        out[k] = (top * (1.0 - fy) + bottom * fy).round().clamp(0.0, 255.0) as u8;
+    }
+    out
+}
+
+/// How the one global scale that self-calibration cannot know is fixed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "mode", rename_all = "kebab-case")]
+pub enum ScaleMode {
+    /// Scale the cloud so that its median depth is 1 (the default; say so in reports).
+    MedianDepth,
+    /// Multiply the solver's cloud by a factor.
+    Factor { factor: f64 },
+    /// Two image points (distorted pixels) on the scanned surface are `distance` apart.
+    KnownDistance {
+        a_px: [f64; 2],
+        b_px: [f64; 2],
+        distance: f64,
+    },
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ScaleError {
+    #[error("the cloud is empty: nothing to scale")]
+    Empty,
+    #[error("no reconstructed point within {radius_px} px of image point ({u:.1}, {v:.1}); pick a point on a scanned part of the surface")]
+    NoPointNear { u: f64, v: f64, radius_px: f64 },
+    #[error("the two known-distance points coincide in the cloud")]
+    Degenerate,
+    #[error("scale factor must be a positive finite number, found {0}")]
+    BadFactor(f64),
+}
+
+/// The factor that turns the solver's cloud into the user's units.
+///
+/// `pixels` holds each cloud point's distorted pixel position (needed for
+/// [`ScaleMode::KnownDistance`], which takes the median position of the points within a
+/// few pixels of each image point).
+pub fn scale_for(mode: &ScaleMode, cloud: &Cloud, pixels: &[[f32; 2]]) -> Result<f64, ScaleError> {
+    match mode {
+        ScaleMode::Factor { factor } => {
+            if factor.is_finite() && *factor > 0.0 {
+                Ok(*factor)
+            } else {
+                Err(ScaleError::BadFactor(*factor))
+            }
+        }
+        ScaleMode::MedianDepth => {
+            let mut z: Vec<f32> = cloud.points.iter().map(|p| p[2]).collect();
+            if z.is_empty() {
+                return Err(ScaleError::Empty);
+            }
+            let mid = z.len() / 2;
+            let (_, m, _) = z.select_nth_unstable_by(mid, f32::total_cmp);
+            Ok(1.0 / *m as f64)
+        }
+        ScaleMode::KnownDistance {
+            a_px,
+            b_px,
+            distance,
+        } => {
+            if !(distance.is_finite() && *distance > 0.0) {
+                return Err(ScaleError::BadFactor(*distance));
+            }
+            let a = point_near(cloud, pixels, *a_px)?;
+            let b = point_near(cloud, pixels, *b_px)?;
+            let d = (a - b).norm();
+            if d <= f64::EPSILON * a.norm().max(1.0) {
+                return Err(ScaleError::Degenerate);
+            }
+            Ok(distance / d)
+        }
+    }
+}
+
+fn point_near(
+    cloud: &Cloud,
+    pixels: &[[f32; 2]],
+    at: [f64; 2],
+) -> Result<Vector3<f64>, ScaleError> {
+    for radius_px in [2.0, 5.0, 10.0] {
+        let mut near: Vec<Vector3<f64>> = pixels
+            .iter()
+            .zip(&cloud.points)
+            .filter(|(px, _)| (px[0] as f64 - at[0]).hypot(px[1] as f64 - at[1]) <= radius_px)
+            .map(|(_, p)| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            .collect();
+        if near.len() >= 3 || (radius_px >= 10.0 && !near.is_empty()) {
+            // Component-wise median: robust to a stray point of another surface.
+            let mut out = Vector3::zeros();
+            for k in 0..3 {
+                near.sort_by(|a, b| a[k].total_cmp(&b[k]));
+                out[k] = near[near.len() / 2][k];
+            }
+            return Ok(out);
+        }
+    }
+    Err(ScaleError::NoPointNear {
+        u: at[0],
+        v: at[1],
+        radius_px: 10.0,
+    })
+}
+
+/// Multiplies every point by `factor` (about the camera centre).
+pub fn apply_scale(cloud: &mut Cloud, factor: f64) {
+    let f = factor as f32;
+    for p in &mut cloud.points {
+        p[0] *= f;
+        p[1] *= f;
+        p[2] *= f;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn empty_cloud() -> Cloud {
+        Cloud {
+            colors: Some(vec![]),
+            frames: Some(vec![]),
+            lasers: Some(vec![]),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn points_land_on_their_plane_at_the_right_depth() {
+        // Plane through (0, 0, 2) with normal (0.3, -0.2, 1): v = n / (n . p0).
+        let n = Vector3::new(0.3, -0.2, 1.0);
+        let v = n / n.dot(&Vector3::new(0.0, 0.0, 2.0));
+        for &(x, y) in &[(0.0, 0.0), (0.4, -0.3), (-0.2, 0.25)] {
+            let p = triangulate(&v, x, y, 0.0).expect("in front");
+            assert!((v.dot(&p) - 1.0).abs() < 1e-12);
+            assert!((p.x / p.z - x).abs() < 1e-12 && (p.y / p.z - y).abs() < 1e-12);
+        }
+        assert_eq!(
+            triangulate(&-v, 0.0, 0.0, 0.0),
+            Err(Rejection::BehindCamera)
+        );
+    }
+
+    #[test]
+    fn grazing_rays_are_refused() {
+        // A plane containing nearly the ray (1, 0, 1): v = (a, 0, c) with a + c tiny.
+        let v = Vector3::new(-1.0, 0.0, 1.0 + 1e-3);
+        assert_eq!(
+            triangulate(&v, 1.0, 0.0, 3f64.to_radians().sin()),
+            Err(Rejection::Grazing)
+        );
+        assert!(triangulate(&v, -1.0, 0.0, 3f64.to_radians().sin()).is_ok());
+    }
+
+    #[test]
+    fn push_curve_keeps_attributes_aligned_and_counts_rejections() {
+        let v = Vector3::new(0.0, 0.0, 0.5);
+        let mut cloud = empty_cloud();
+        let img = RgbImage::from_pixel(4, 4, image::Rgb([10, 20, 30]));
+        let stats = push_curve(
+            &mut cloud,
+            &v,
+            CurvePoints {
+                frame: 7,
+                laser: 1,
+                points: &[[0.0, 0.0], [0.1, 0.1]],
+                points_px: &[[1.0, 1.0], [2.5, 2.5]],
+            },
+            Some(&img),
+            &TriangulateParams::default(),
+        );
+        assert_eq!(stats.kept, 2);
+        assert_eq!(cloud.points[1], [0.2, 0.2, 2.0]);
+        assert_eq!(cloud.colors.as_deref(), Some(&[[10, 20, 30]; 2][..]));
+        assert_eq!(cloud.frames.as_deref(), Some(&[7, 7][..]));
+        assert_eq!(cloud.lasers.as_deref(), Some(&[1, 1][..]));
+    }
+
+    #[test]
+    fn scale_modes() {
+        let mut cloud = empty_cloud();
+        cloud.points = vec![[0.0, 0.0, 2.0], [0.0, 0.0, 4.0], [1.0, 0.0, 8.0]];
+        let s = scale_for(&ScaleMode::MedianDepth, &cloud, &[]).expect("median");
+        assert!((s - 0.25).abs() < 1e-12);
+        // Known distance between the first two points, seen at pixels (10,10), (50,10).
+        let pixels = [[10.0, 10.0], [50.0, 10.0], [90.0, 10.0]];
+        let s = scale_for(
+            &ScaleMode::KnownDistance {
+                a_px: [10.5, 10.0],
+                b_px: [49.0, 10.5],
+                distance: 0.5,
+            },
+            &cloud,
+            &pixels,
+        )
+        .expect("known distance");
+        assert!((s - 0.25).abs() < 1e-12);
+        assert!(matches!(
+            scale_for(
+                &ScaleMode::KnownDistance {
+                    a_px: [300.0, 300.0],
+                    b_px: [10.0, 10.0],
+                    distance: 1.0
+                },
+                &cloud,
+                &pixels
+            ),
+            Err(ScaleError::NoPointNear { .. })
+        ));
+        assert_eq!(
+            scale_for(&ScaleMode::Factor { factor: -1.0 }, &cloud, &pixels),
+            Err(ScaleError::BadFactor(-1.0))
+        );
+        apply_scale(&mut cloud, 0.5);
+        assert_eq!(cloud.points[2], [0.5, 0.0, 4.0]);
+    }
+
+    #[test]
+    fn bilinear_colour() {
+        let mut img = RgbImage::new(2, 1);
+        img.put_pixel(0, 0, image::Rgb([0, 100, 200]));
+        img.put_pixel(1, 0, image::Rgb([100, 200, 0]));
+        assert_eq!(sample_rgb(&img, 0.5, 0.0), [50, 150, 100]);
+        assert_eq!(sample_rgb(&img, -3.0, 9.0), [0, 100, 200]);
+    }
+}
