@@ -87,9 +87,11 @@ pub struct CurvePoints<'a> {
 }
 
 /// Appends the points of one curve to `cloud`, coloured from `colour_source` (the
-/// laser-free background) at each point's distorted pixel.
+/// laser-free background) at each point's distorted pixel, and each kept point's
+/// distorted pixel to `pixels` when given.
 pub fn push_curve(
     cloud: &mut Cloud,
+    mut pixels: Option<&mut Vec<[f32; 2]>>,
     plane: &Vector3<f64>,
     curve: CurvePoints<'_>,
     colour_source: Option<&RgbImage>,
@@ -107,12 +109,15 @@ pub fn push_curve(
         match triangulate(plane, x, y, min_sin) {
             Ok(p) => {
                 cloud.points.push([p.x as f32, p.y as f32, p.z as f32]);
+                let px = points_px.get(i).copied().unwrap_or([f32::NAN; 2]);
+                if let Some(pixels) = pixels.as_deref_mut() {
+                    pixels.push(px);
+                }
                 if let Some(colors) = cloud.colors.as_mut() {
-                    let rgb = match (colour_source, points_px.get(i)) {
-                        (Some(img), Some(px)) => sample_rgb(img, px[0], px[1]),
+                    colors.push(match colour_source {
+                        Some(img) if px[0].is_finite() => sample_rgb(img, px[0], px[1]),
                         _ => [255, 255, 255],
-                    };
-                    colors.push(rgb);
+                    });
                 }
                 if let Some(frames) = cloud.frames.as_mut() {
                     frames.push(frame);
@@ -306,8 +311,10 @@ mod tests {
         let v = Vector3::new(0.0, 0.0, 0.5);
         let mut cloud = empty_cloud();
         let img = RgbImage::from_pixel(4, 4, image::Rgb([10, 20, 30]));
+        let mut pixels = Vec::new();
         let stats = push_curve(
             &mut cloud,
+            Some(&mut pixels),
             &v,
             CurvePoints {
                 frame: 7,
@@ -319,6 +326,7 @@ mod tests {
             &TriangulateParams::default(),
         );
         assert_eq!(stats.kept, 2);
+        assert_eq!(pixels, vec![[1.0, 1.0], [2.5, 2.5]]);
         assert_eq!(cloud.points[1], [0.2, 0.2, 2.0]);
         assert_eq!(cloud.colors.as_deref(), Some(&[[10, 20, 30]; 2][..]));
         assert_eq!(cloud.frames.as_deref(), Some(&[7, 7][..]));
