@@ -1,11 +1,161 @@
-//! `crossline reconstruct` (placeholder, filled by its owner).
+//! `crossline reconstruct`: frames in, coloured point cloud out.
 
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-/// (placeholder)
-#[derive(clap::Args)]
-pub struct Args {}
+use anyhow::{bail, Context};
+use crossline::cloud::ScaleMode;
+use crossline::reconstruct::{self, ReconstructConfig, Reconstruction};
 
-pub fn run(_args: Args) -> anyhow::Result<ExitCode> {
-    anyhow::bail!("`crossline reconstruct` is not implemented yet")
+/// Recover every laser plane with no knowledge of the projector, and triangulate a
+/// dense, coloured point cloud in the camera frame (OpenCV axes).
+///
+/// The cloud's global scale cannot be known from the images alone. By default the
+/// cloud is scaled so that its median depth is 1; --scale multiplies that raw solution
+/// by a factor instead, and --known-distance fixes it from two image points on the
+/// scanned surface whose distance you know. `crossline compare --align scale` finds it
+/// against a reference cloud.
+///
+/// Example:
+///
+///   crossline reconstruct --input sim --camera sim/camera.yml --out cloud.ply --report report.json
+#[derive(clap::Args)]
+#[command(verbatim_doc_comment)]
+pub struct Args {
+    /// A folder of frames (.png/.jpg; `frame_*` files only when present), in name order.
+    #[arg(long, value_name = "DIR")]
+    input: PathBuf,
+    /// Camera calibration: OpenCV FileStorage YAML, ROS camera_info YAML, or TOML with a
+    /// [camera] table.
+    #[arg(long, value_name = "FILE")]
+    camera: PathBuf,
+    /// Output cloud (binary little-endian PLY: x y z, red green blue, frame, laser).
+    #[arg(long, value_name = "FILE")]
+    out: PathBuf,
+    /// Settings file (see config/crossline.toml for every key and its default).
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// A laser-off frame of the same view; without it the background is the temporal
+    /// median of frames sampled over the sequence.
+    #[arg(long, value_name = "FILE")]
+    background: Option<PathBuf>,
+    /// Write a JSON report: counts, residuals, focal estimate, time per stage.
+    #[arg(long, value_name = "FILE")]
+    report: Option<PathBuf>,
+    /// Multiply the raw solution by this factor instead of normalising the median depth.
+    #[arg(long, value_name = "FACTOR", conflicts_with = "known_distance")]
+    scale: Option<f64>,
+    /// U1,V1,U2,V2,D: the image points (pixels) (U1,V1) and (U2,V2) lie on the scanned
+    /// surface D units apart; the cloud is scaled to match.
+    #[arg(long, value_name = "U1,V1,U2,V2,D", value_delimiter = ',', num_args = 5)]
+    known_distance: Option<Vec<f64>>,
+    /// Estimate the focal length from the orthogonality of the crosses (e.g. under
+    /// water behind a flat port, where it grows by about 1.33).
+    #[arg(long)]
+    estimate_focal: bool,
+}
+
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let camera = crossline::camera_file::load(&args.camera)
+        .with_context(|| format!("loading the camera from {}", args.camera.display()))?;
+    let mut config = match &args.config {
+        Some(path) => crossline::config::load(path)?.reconstruct,
+        None => ReconstructConfig::default(),
+    };
+    if args.estimate_focal {
+        config.solve.estimate_focal = true;
+    }
+    let scale = scale_mode(&args)?;
+    let frames = reconstruct::list_frames(&args.input)?;
+    tracing::info!(frames = frames.len(), input = %args.input.display(), "reconstructing");
+    let bar = progress_bar(frames.len() as u64);
+    let rec = reconstruct::reconstruct_files(
+        &frames,
+        args.background.as_deref(),
+        &camera,
+        &config,
+        &scale,
+        &|_stage: &str, done: usize, _total: usize| bar.set_position(done as u64),
+    )?;
+    bar.finish_and_clear();
+    write_outputs(&rec, &args.out, args.report.as_deref())?;
+    print_summary(&rec);
+    Ok(ExitCode::SUCCESS)
+}
+
+fn scale_mode(args: &Args) -> anyhow::Result<ScaleMode> {
+    Ok(match (&args.scale, &args.known_distance) {
+        (Some(factor), _) => ScaleMode::Factor { factor: *factor },
+        (None, Some(v)) => {
+            let [u1, v1, u2, v2, d] = v[..] else {
+                bail!("--known-distance takes five numbers U1,V1,U2,V2,D");
+            };
+            ScaleMode::KnownDistance {
+                a_px: [u1, v1],
+                b_px: [u2, v2],
+                distance: d,
+            }
+        }
+        (None, None) => ScaleMode::MedianDepth,
+    })
+}
+
+pub fn progress_bar(len: u64) -> indicatif::ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(len);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{spinner} {msg} [{bar:40}] {pos}/{len} frames ({per_sec}, {eta} left)",
+    ) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar
+}
+
+pub fn write_outputs(rec: &Reconstruction, out: &Path, report: Option<&Path>) -> anyhow::Result<()> {
+    let comments = [
+        "generated by crossline reconstruct".to_string(),
+        format!("scale {:?} factor {}", rec.report.scale_mode, rec.report.scale_factor),
+    ];
+    crossline::ply::write_ply(out, &rec.cloud, &comments)
+        .with_context(|| format!("writing the cloud to {}", out.display()))?;
+    if let Some(path) = report {
+        let json = serde_json::to_string_pretty(&rec.report)?;
+        std::fs::write(path, json + "\n")
+            .with_context(|| format!("writing the report to {}", path.display()))?;
+    }
+    Ok(())
+}
+
+pub fn print_summary(rec: &Reconstruction) {
+    let r = &rec.report;
+    println!(
+        "frames {} (with laser {}), curves {}, planes {}, crossings {}",
+        r.frames, r.frames_with_laser, r.curves, r.planes, r.crossings
+    );
+    println!(
+        "planes: {} in the global solve, {} solved; rejected {} crossings, {} planes",
+        r.planes_in_global_solve, r.planes_solved, r.rejected_crossings, r.rejected_planes
+    );
+    println!(
+        "residual rms {:.3e}, orthogonality rms {:.3} deg, focal scale {:.4}{}",
+        r.residual_rms,
+        r.orthogonality_rms_deg,
+        r.focal_scale,
+        r.focal_scale_std
+            .map(|s| format!(" ± {s:.4}"))
+            .unwrap_or_default()
+    );
+    let scale_note = match r.scale_mode {
+        ScaleMode::MedianDepth => " (median depth normalised to 1: use --scale or --known-distance for real units)",
+        _ => "",
+    };
+    println!("points {}, scale factor {:.6}{scale_note}", r.points, r.scale_factor);
+    let s = &r.seconds;
+    println!(
+        "seconds: background {:.2}, extract {:.2}, intersect {:.2}, solve {:.2}, triangulate {:.2}",
+        s.background_s, s.extract_s, s.intersect_s, s.solve_s, s.triangulate_s
+    );
 }

@@ -1,0 +1,409 @@
+//! Offline reconstruction: a sequence of frames in, a coloured point cloud out.
+//!
+//! This module only wires the stages together; each stage lives in its own module and
+//! the live daemon reuses them:
+//!
+//! 1. background ([`crate::extract::Background`]): a laser-off frame, or the per-pixel
+//!    temporal median of frames sampled over the sequence;
+//! 2. extract ([`crate::extract::Extractor`]): both laser curves of every frame, in
+//!    parallel over frames;
+//! 3. intersect ([`crate::intersect`]): crossings between curves of different planes;
+//! 4. solve ([`crate::solve`]): every plane, up to one global scale;
+//! 5. triangulate ([`crate::cloud`]): points, colour from the background, scale.
+//!
+//! A *plane* here is one laser of one frame: when occlusion splits a laser's stripe
+//! into several curves, the pieces share one plane unknown.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use image::RgbImage;
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::camera::Camera;
+use crate::cloud::{self, CurvePoints, ScaleMode, TriangulateParams, TriangulateStats};
+use crate::extract::{Background, Curve, ExtractParams, Extractor};
+use crate::intersect::{Crossing, SegmentIndex};
+use crate::ply::Cloud;
+use crate::solve::{self, Problem, SolveParams, Solution};
+
+/// Settings of the offline pipeline: the `[extract]`, `[solve]`, `[triangulate]` and
+/// `[background]` tables of `crossline.toml`.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReconstructConfig {
+    pub background: BackgroundParams,
+    pub extract: ExtractParams,
+    pub solve: SolveParams,
+    pub triangulate: TriangulateParams,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BackgroundParams {
+    /// Frames sampled evenly over the sequence for the temporal median background
+    /// (ignored when a laser-off frame is given). More frames cost time once; an odd
+    /// number avoids averaging two middle values.
+    pub median_frames: usize,
+}
+
+impl Default for BackgroundParams {
+    fn default() -> Self {
+        Self { median_frames: 25 }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ReconstructError {
+    #[error("cannot list frames in {path}: {source}")]
+    List {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("no frames (.png, .jpg, .jpeg) in {0}")]
+    NoFrames(PathBuf),
+    #[error("cannot decode frame {path}: {source}")]
+    Decode {
+        path: PathBuf,
+        #[source]
+        source: image::ImageError,
+    },
+    #[error("frame {path} is {got_w}x{got_h}, but the camera file says {want_w}x{want_h}")]
+    Size {
+        path: PathBuf,
+        got_w: u32,
+        got_h: u32,
+        want_w: u32,
+        want_h: u32,
+    },
+    #[error("extraction: {0}")]
+    Extract(#[from] crate::extract::ExtractError),
+    #[error("solving the planes: {0}")]
+    Solve(#[from] solve::SolveError),
+    #[error("scale: {0}")]
+    Scale(#[from] cloud::ScaleError),
+}
+
+/// The frames of a sequence: every `.png`/`.jpg`/`.jpeg` in a folder, in name order. When
+/// the folder holds `frame_*` images (as `crossline simulate` writes), only those count,
+/// so a background or mask beside them is not taken for a frame.
+pub fn list_frames(dir: &Path) -> Result<Vec<PathBuf>, ReconstructError> {
+    let entries = std::fs::read_dir(dir).map_err(|source| ReconstructError::List {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let mut all = Vec::new();
+    for entry in entries {
+        let path = entry
+            .map_err(|source| ReconstructError::List {
+                path: dir.to_path_buf(),
+                source,
+            })?
+            .path();
+        let is_image = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "png" | "jpg" | "jpeg"));
+        if is_image && path.is_file() {
+            all.push(path);
+        }
+    }
+    all.sort();
+    let framed: Vec<PathBuf> = all
+        .iter()
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with("frame_"))
+        })
+        .cloned()
+        .collect();
+    let frames = if framed.is_empty() { all } else { framed };
+    if frames.is_empty() {
+        return Err(ReconstructError::NoFrames(dir.to_path_buf()));
+    }
+    Ok(frames)
+}
+
+fn decode(path: &Path, camera: &Camera) -> Result<RgbImage, ReconstructError> {
+    let img = image::open(path)
+        .map_err(|source| ReconstructError::Decode {
+            path: path.to_path_buf(),
+            source,
+        })?
+        .into_rgb8();
+    if img.width() != camera.width || img.height() != camera.height {
+        return Err(ReconstructError::Size {
+            path: path.to_path_buf(),
+            got_w: img.width(),
+            got_h: img.height(),
+            want_w: camera.width,
+            want_h: camera.height,
+        });
+    }
+    Ok(img)
+}
+
+/// Seconds spent in each stage.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct StageTimes {
+    pub background_s: f64,
+    pub extract_s: f64,
+    pub intersect_s: f64,
+    pub solve_s: f64,
+    pub triangulate_s: f64,
+}
+
+/// What a reconstruction found; serialised as the `--report` JSON (with `version`).
+#[derive(Clone, Debug, Serialize)]
+pub struct ReconstructReport {
+    pub version: u32,
+    pub frames: usize,
+    pub frames_with_laser: usize,
+    pub curves: usize,
+    pub planes: usize,
+    pub crossings: usize,
+    pub planes_in_global_solve: usize,
+    pub planes_solved: usize,
+    pub rejected_crossings: usize,
+    pub rejected_planes: usize,
+    pub residual_rms: f64,
+    pub orthogonality_rms_deg: f64,
+    pub focal_scale: f64,
+    pub focal_scale_std: Option<f64>,
+    pub focal_px: [f64; 2],
+    pub scale_mode: ScaleMode,
+    pub scale_factor: f64,
+    pub points: usize,
+    pub triangulation: TriangulateStats,
+    pub seconds: StageTimes,
+}
+
+/// Version of the report JSON.
+pub const REPORT_VERSION: u32 = 1;
+
+/// A finished reconstruction.
+pub struct Reconstruction {
+    pub cloud: Cloud,
+    /// Distorted pixel of every cloud point.
+    pub pixels: Vec<[f32; 2]>,
+    pub report: ReconstructReport,
+    /// Per plane: the solved plane in the output's (scaled) camera frame.
+    pub planes: Vec<Option<Vector3<f64>>>,
+}
+
+/// One laser of one frame: a plane unknown and the curves that lie on it.
+struct PlaneCurves {
+    frame: u32,
+    laser: u8,
+    curves: Vec<Curve>,
+}
+
+/// Callbacks for progress on long stages: `(stage, done, total)`.
+pub trait Progress: Sync {
+    fn update(&self, stage: &str, done: usize, total: usize);
+}
+
+impl<F: Fn(&str, usize, usize) + Sync> Progress for F {
+    fn update(&self, stage: &str, done: usize, total: usize) {
+        self(stage, done, total)
+    }
+}
+
+/// Runs the whole offline pipeline over image files.
+pub fn reconstruct_files(
+    frames: &[PathBuf],
+    background: Option<&Path>,
+    camera: &Camera,
+    config: &ReconstructConfig,
+    scale: &ScaleMode,
+    progress: &dyn Progress,
+) -> Result<Reconstruction, ReconstructError> {
+    let mut times = StageTimes::default();
+    let t = Instant::now();
+    let background = match background {
+        Some(path) => Background::from_image(decode(path, camera)?),
+        None => {
+            let k = config.background.median_frames.clamp(1, frames.len());
+            let picks: Vec<&PathBuf> = (0..k)
+                .map(|i| &frames[(i * frames.len()) / k + frames.len() / (2 * k)])
+                .collect();
+            let images = picks
+                .par_iter()
+                .map(|p| decode(p, camera))
+                .collect::<Result<Vec<_>, _>>()?;
+            let refs: Vec<&RgbImage> = images.iter().collect();
+            Background::median_of(&refs)
+        }
+    };
+    times.background_s = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let per_frame: Vec<Vec<Curve>> = frames
+        .par_iter()
+        .map_init(
+            || Extractor::new(&config.extract, camera),
+            |extractor, path| {
+                let extractor = extractor.as_mut().map_err(|e| e.clone())?;
+                let img = decode(path, camera)?;
+                let curves = extractor.extract(&img, &background);
+                let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                progress.update("extract", n, frames.len());
+                Ok(curves)
+            },
+        )
+        .collect::<Result<_, ReconstructError>>()?;
+    times.extract_s = t.elapsed().as_secs_f64();
+
+    let mut rec = reconstruct_curves(per_frame, camera, config, scale, Some(background.image()))?;
+    rec.report.seconds.background_s = times.background_s;
+    rec.report.seconds.extract_s = times.extract_s;
+    Ok(rec)
+}
+
+/// The stages after extraction: from each frame's curves to the scaled cloud.
+pub fn reconstruct_curves(
+    per_frame: Vec<Vec<Curve>>,
+    camera: &Camera,
+    config: &ReconstructConfig,
+    scale: &ScaleMode,
+    colour_source: Option<&RgbImage>,
+) -> Result<Reconstruction, ReconstructError> {
+    let mut times = StageTimes::default();
+    let frames = per_frame.len();
+    let frames_with_laser = per_frame.iter().filter(|c| !c.is_empty()).count();
+
+    // Group curves into plane unknowns: one per (frame, laser).
+    let mut planes: Vec<PlaneCurves> = Vec::new();
+    for (frame, curves) in per_frame.into_iter().enumerate() {
+        let mut by_laser: [Vec<Curve>; 2] = [Vec::new(), Vec::new()];
+        for c in curves {
+            if let Some(slot) = by_laser.get_mut(c.laser as usize) {
+                slot.push(c);
+            }
+        }
+        for (laser, curves) in by_laser.into_iter().enumerate() {
+            if !curves.is_empty() {
+                planes.push(PlaneCurves {
+                    frame: frame as u32,
+                    laser: laser as u8,
+                    curves,
+                });
+            }
+        }
+    }
+    let curves_total: usize = planes.iter().map(|p| p.curves.len()).sum();
+    let partner: Vec<Option<u32>> = (0..planes.len())
+        .map(|i| {
+            let p = &planes[i];
+            let other = |j: usize| {
+                planes
+                    .get(j)
+                    .filter(|q| q.frame == p.frame && q.laser != p.laser)
+                    .map(|_| j as u32)
+            };
+            other(i + 1).or_else(|| i.checked_sub(1).and_then(other))
+        })
+        .collect();
+
+    let t = Instant::now();
+    let mut index = SegmentIndex::new(config.solve.min_sin_angle);
+    let mut crossings: Vec<Crossing> = Vec::new();
+    for (id, plane) in planes.iter().enumerate() {
+        for curve in &plane.curves {
+            crossings.extend(index.insert(id as u32, &curve.polyline));
+        }
+    }
+    times.intersect_s = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let problem = Problem {
+        num_curves: planes.len(),
+        crossings: &crossings,
+        partner: &partner,
+    };
+    let solution: Solution = solve::solve(&problem, &config.solve)?;
+    times.solve_s = t.elapsed().as_secs_f64();
+
+    // The solver's planes live in the file's normalised coordinates; with a focal
+    // estimate λ the true rays are (x/λ, y/λ, 1), so points are scaled in X and Y.
+    let lambda = solution.focal_scale;
+    let t = Instant::now();
+    let mut cloud = Cloud {
+        colors: Some(Vec::new()),
+        frames: Some(Vec::new()),
+        lasers: Some(Vec::new()),
+        ..Default::default()
+    };
+    let mut pixels: Vec<[f32; 2]> = Vec::new();
+    let mut stats = TriangulateStats::default();
+    for (id, plane) in planes.iter().enumerate() {
+        let Some(v) = solution.planes.get(id).copied().flatten() else {
+            continue;
+        };
+        for curve in &plane.curves {
+            stats.add(&cloud::push_curve(
+                &mut cloud,
+                Some(&mut pixels),
+                &v,
+                CurvePoints {
+                    frame: plane.frame,
+                    laser: plane.laser,
+                    points: &curve.points,
+                    points_px: &curve.points_px,
+                },
+                colour_source,
+                &config.triangulate,
+            ));
+        }
+    }
+    if lambda != 1.0 {
+        let inv = (1.0 / lambda) as f32;
+        for p in &mut cloud.points {
+            p[0] *= inv;
+            p[1] *= inv;
+        }
+    }
+    let factor = cloud::scale_for(scale, &cloud, &pixels)?;
+    cloud::apply_scale(&mut cloud, factor);
+    times.triangulate_s = t.elapsed().as_secs_f64();
+
+    // Planes in the output frame: X' = f·diag(1/λ,1/λ,1)·X, so v' = diag(λ,λ,1)·v / f.
+    let out_planes = solution
+        .planes
+        .iter()
+        .map(|p| p.map(|v| Vector3::new(v.x * lambda, v.y * lambda, v.z) / factor))
+        .collect();
+    let report = ReconstructReport {
+        version: REPORT_VERSION,
+        frames,
+        frames_with_laser,
+        curves: curves_total,
+        planes: planes.len(),
+        crossings: crossings.len(),
+        planes_in_global_solve: solution.global.len(),
+        planes_solved: solution.planes.iter().filter(|p| p.is_some()).count(),
+        rejected_crossings: solution.rejected_crossings.len(),
+        rejected_planes: solution.rejected_curves.len(),
+        residual_rms: solution.residual_rms,
+        orthogonality_rms_deg: solution.orthogonality_rms_deg,
+        focal_scale: lambda,
+        focal_scale_std: solution.focal_scale_std,
+        focal_px: [camera.fx * lambda, camera.fy * lambda],
+        scale_mode: scale.clone(),
+        scale_factor: factor,
+        points: cloud.len(),
+        triangulation: stats,
+        seconds: times,
+    };
+    Ok(Reconstruction {
+        cloud,
+        pixels,
+        report,
+        planes: out_planes,
+    })
+}
