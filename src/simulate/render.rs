@@ -1,0 +1,604 @@
+//! Image formation: a per-pixel cache of the fixed view (ray-cast once), then per frame
+//! the two laser stripes, water glow, sensor noise and quantisation.
+//!
+//! The stripe is an image-space Gaussian across the plane's image curve: for a pixel
+//! whose surface point `P` lies at signed distance `d = n·P − h` from a laser plane,
+//! `I ∝ exp(−d² / (2 (b² + g² σ_psf²)))`, where `b` is the beam half thickness and `g`
+//! the length of `∇_pixel d` (metres per pixel along the curve normal). In pixel units
+//! that is a profile of variance `(b/g)² + σ_psf²` centred exactly on the curve `d = 0`.
+
+use image::RgbImage;
+use nalgebra::{Matrix2, Matrix3x2, Vector3};
+use rayon::prelude::*;
+
+use super::motion::{Motion, ProjectorPose, SplitMix64};
+use super::scene::{camera_from_spec, mix64, Medium, Scene, SceneSpec};
+use super::{FrameTruth, SimError};
+use crate::camera::Camera;
+
+type V3 = Vector3<f64>;
+
+/// Settings of one simulation run that are not part of the scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimParams {
+    pub seed: u64,
+    /// Standard deviation of the Gaussian sensor noise, grey levels.
+    pub noise_sigma: f64,
+    /// Pass every image through a JPEG encoder of this quality (1-100).
+    pub jpeg_quality: Option<u8>,
+}
+
+impl Default for SimParams {
+    fn default() -> Self {
+        Self {
+            seed: 1,
+            noise_sigma: 2.0,
+            jpeg_quality: None,
+        }
+    }
+}
+
+/// What the fixed camera sees at one pixel, computed once per scene.
+#[derive(Clone, Copy, Debug, Default)]
+struct Pixel {
+    /// Surface point (camera coordinates); for misses, a point far along the ray.
+    p: [f64; 3],
+    /// Distance of `p` from the camera.
+    range: f32,
+    /// `∂P/∂u` and `∂P/∂v` on the local tangent plane (scene units per pixel).
+    j: [f32; 6],
+    /// Squared Frobenius norm of `j`: an upper bound of `g²` for any plane.
+    jf2: f32,
+    /// Unit surface normal facing the camera.
+    normal: [f32; 3],
+    /// Albedo times texture.
+    refl: [f32; 3],
+    hit: bool,
+}
+
+/// Laser `k` in one frame.
+struct LaserFrame {
+    n: V3,
+    h: f64,
+    centre: V3,
+    axis: V3,
+    fan_dir: V3,
+    colour: [f64; 3],
+}
+
+struct Water {
+    /// Attenuation per unit length, per channel.
+    c: [f64; 3],
+    /// Fraction of laser light scattered forward per unit path length.
+    forward: f64,
+    /// Glow grey level face-on at the reference distance.
+    backscatter: f64,
+    /// Variance of the forward-scatter blur, px².
+    halo2: f64,
+}
+
+/// The renderer of one scene: owns the fixed view and renders any frame on demand.
+pub struct Simulator {
+    spec: SceneSpec,
+    params: SimParams,
+    camera: Camera,
+    scene: Scene,
+    motion: Motion,
+    pixels: Vec<Pixel>,
+    ambient: Vec<[f32; 3]>,
+    colours: [[f64; 3]; 2],
+    beam2: f64,
+    psf2: f64,
+    tan_half_fan: f64,
+    power: f64,
+    reference_distance: f64,
+    water: Option<Water>,
+    gauss: Vec<f32>,
+}
+
+const GAUSS_BITS: u32 = 12;
+
+impl Simulator {
+    pub fn new(spec: &SceneSpec, params: &SimParams) -> Result<Simulator, SimError> {
+        let camera = camera_from_spec(&spec.camera);
+        let scene = Scene::from_spec(spec);
+        let motion = Motion::new(spec, params.seed);
+        let distance = spec.distance();
+        let p = &spec.projector;
+        let water = (spec.medium == Medium::Water).then(|| {
+            let w = &spec.water;
+            let t = w.turbidity.max(0.0);
+            let blur_px = w.forward_blur_mrad * 1e-3 * camera.fx * t.sqrt();
+            Water {
+                c: [0, 1, 2].map(|k| w.absorption[k] + t * w.scattering[k]),
+                forward: w.forward_scatter * t,
+                backscatter: w.backscatter * t,
+                halo2: blur_px * blur_px,
+            }
+        });
+        let mut sim = Simulator {
+            spec: spec.clone(),
+            params: params.clone(),
+            scene,
+            motion,
+            pixels: Vec::new(),
+            ambient: Vec::new(),
+            colours: p.colours.map(|c| c.rgb()),
+            beam2: p.beam_half_thickness.unwrap_or(0.0006 * distance).powi(2),
+            psf2: spec.camera.psf_sigma_px.powi(2),
+            tan_half_fan: (0.5 * p.fan_deg.to_radians()).tan(),
+            power: p.power,
+            reference_distance: distance,
+            water,
+            gauss: gaussian_table(),
+            camera,
+        };
+        sim.cache_view();
+        Ok(sim)
+    }
+
+    pub fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    pub fn spec(&self) -> &SceneSpec {
+        &self.spec
+    }
+
+    pub fn params(&self) -> &SimParams {
+        &self.params
+    }
+
+    pub fn motion(&self) -> &Motion {
+        &self.motion
+    }
+
+    /// Beam half thickness in scene units.
+    pub fn beam_half_thickness(&self) -> f64 {
+        self.beam2.sqrt()
+    }
+
+    /// The projector pose of frame `index`.
+    pub fn pose(&self, index: usize) -> ProjectorPose {
+        self.motion.pose(index, &self.scene, &self.camera)
+    }
+
+    /// The ground truth of frame `index` (no rendering).
+    pub fn frame_truth(&self, index: usize) -> FrameTruth {
+        let pose = self.pose(index);
+        FrameTruth {
+            index,
+            projector_centre: pose.centre.into(),
+            planes: [pose.plane(0).into(), pose.plane(1).into()],
+            axis: pose.axis.into(),
+            roll_rad: pose.roll_rad,
+            fan_dirs: [pose.fan_dirs[0].into(), pose.fan_dirs[1].into()],
+        }
+    }
+
+    /// Per-pixel Z (camera coordinates), NaN where the ray leaves the scene; row-major.
+    pub fn depth(&self) -> Vec<f32> {
+        self.pixels
+            .iter()
+            .map(|p| if p.hit { p.p[2] as f32 } else { f32::NAN })
+            .collect()
+    }
+
+    /// Hit points and their ambient colours, one per pixel that sees a surface.
+    pub fn surface_points(&self) -> (Vec<[f32; 3]>, Vec<[u8; 3]>) {
+        self.pixels
+            .iter()
+            .zip(&self.ambient)
+            .filter(|(p, _)| p.hit)
+            .map(|(p, a)| {
+                (
+                    p.p.map(|v| v as f32),
+                    a.map(|v| v.round().clamp(0.0, 255.0) as u8),
+                )
+            })
+            .unzip()
+    }
+
+    /// Frame `index` with its ground truth.
+    pub fn render_frame(&self, index: usize) -> (RgbImage, FrameTruth) {
+        let mut img = RgbImage::new(self.camera.width, self.camera.height);
+        let truth = self.render_frame_into(index, &mut img, None);
+        (img, truth)
+    }
+
+    /// Renders frame `index` into `img` (resized if needed). When `lit` is given
+    /// (`width * height` entries), pixels whose centre lies within 0.5 px of an
+    /// unshadowed stripe centre line inside the fan are set to 255.
+    pub fn render_frame_into(
+        &self,
+        index: usize,
+        img: &mut RgbImage,
+        lit: Option<&mut [u8]>,
+    ) -> FrameTruth {
+        let pose = self.pose(index);
+        let lasers = [0, 1].map(|k| LaserFrame {
+            n: pose.normal(k),
+            h: pose.normal(k).dot(&pose.centre),
+            centre: pose.centre,
+            axis: pose.axis,
+            fan_dir: pose.fan_dirs[k],
+            colour: self.colours[k].map(|c| c * self.power),
+        });
+        self.render(img, Some(&lasers), index as u64, lit);
+        FrameTruth {
+            index,
+            projector_centre: pose.centre.into(),
+            planes: [pose.plane(0).into(), pose.plane(1).into()],
+            axis: pose.axis.into(),
+            roll_rad: pose.roll_rad,
+            fan_dirs: [pose.fan_dirs[0].into(), pose.fan_dirs[1].into()],
+        }
+    }
+
+    /// The view with the lasers off, with its own sensor noise.
+    pub fn background(&self) -> RgbImage {
+        let mut img = RgbImage::new(self.camera.width, self.camera.height);
+        self.render(&mut img, None, u64::MAX, None);
+        img
+    }
+
+    fn render(
+        &self,
+        img: &mut RgbImage,
+        lasers: Option<&[LaserFrame; 2]>,
+        key: u64,
+        lit: Option<&mut [u8]>,
+    ) {
+        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
+        if img.width() != self.camera.width || img.height() != self.camera.height {
+            *img = RgbImage::new(self.camera.width, self.camera.height);
+        }
+        let frame_key = mix64(self.params.seed ^ mix64(key));
+        let buf: &mut [u8] = img;
+        match lit {
+            Some(lit) => buf
+                .par_chunks_mut(3 * w)
+                .zip(lit.par_chunks_mut(w))
+                .enumerate()
+                .for_each(|(y, (row, lit_row))| {
+                    self.render_row(y, row, Some(lit_row), lasers, frame_key)
+                }),
+            None => buf
+                .par_chunks_mut(3 * w)
+                .enumerate()
+                .for_each(|(y, row)| self.render_row(y, row, None, lasers, frame_key)),
+        }
+        debug_assert_eq!(buf.len(), 3 * w * h);
+        if let Some(q) = self.params.jpeg_quality {
+            jpeg_round_trip(img, q);
+        }
+    }
+
+    fn render_row(
+        &self,
+        y: usize,
+        row: &mut [u8],
+        mut lit_row: Option<&mut [u8]>,
+        lasers: Option<&[LaserFrame; 2]>,
+        frame_key: u64,
+    ) {
+        let w = self.camera.width as usize;
+        let mut rng = SplitMix64::new(mix64(frame_key ^ (y as u64).wrapping_mul(0xA24B_AED4_963E_E407)));
+        let sigma = self.params.noise_sigma as f32;
+        let mut bits = 0u64;
+        let mut left = 0u32;
+        let mask = (1u64 << GAUSS_BITS) - 1;
+        for x in 0..w {
+            let i = y * w + x;
+            let px = &self.pixels[i];
+            let mut v = [
+                self.ambient[i][0] as f64,
+                self.ambient[i][1] as f64,
+                self.ambient[i][2] as f64,
+            ];
+            if let Some(lasers) = lasers {
+                for laser in lasers {
+                    if px.hit {
+                        let lit_here = self.add_stripe(px, laser, &mut v);
+                        if lit_here {
+                            if let Some(l) = lit_row.as_deref_mut() {
+                                l[x] = 255;
+                            }
+                        }
+                    }
+                    if let Some(water) = &self.water {
+                        self.add_glow(px, laser, water, &mut v);
+                    }
+                }
+            }
+            for c in 0..3 {
+                let mut val = v[c] as f32;
+                if sigma > 0.0 {
+                    if left == 0 {
+                        bits = rng.next_u64();
+                        left = 64 / GAUSS_BITS;
+                    }
+                    val += sigma * self.gauss[(bits & mask) as usize];
+                    bits >>= GAUSS_BITS;
+                    left -= 1;
+                }
+                row[3 * x + c] = (val + 0.5).clamp(0.0, 255.0) as u8;
+            }
+        }
+    }
+
+    /// Adds laser `l`'s stripe at pixel `px`; returns whether the pixel centre lies
+    /// within 0.5 px of the lit centre line.
+    #[inline]
+    fn add_stripe(&self, px: &Pixel, l: &LaserFrame, v: &mut [f64; 3]) -> bool {
+        let p = V3::new(px.p[0], px.p[1], px.p[2]);
+        let d = l.n.dot(&p) - l.h;
+        let d2 = d * d;
+        let halo2 = self.water.as_ref().map_or(0.0, |w| w.halo2);
+        if d2 > 16.0 * (self.beam2 + px.jf2 as f64 * (self.psf2 + halo2)) {
+            return false;
+        }
+        let j = &px.j;
+        let gu = l.n.x * j[0] as f64 + l.n.y * j[1] as f64 + l.n.z * j[2] as f64;
+        let gv = l.n.x * j[3] as f64 + l.n.y * j[4] as f64 + l.n.z * j[5] as f64;
+        let g2 = gu * gu + gv * gv;
+        let s2 = self.beam2 + g2 * self.psf2;
+        let e = d2 / (2.0 * s2);
+        let s2h = s2 + g2 * halo2;
+        let eh = d2 / (2.0 * s2h);
+        if e > 8.0 && eh > 8.0 {
+            return false;
+        }
+        // Inside the fan and in front of the projector.
+        let w = p - l.centre;
+        let wa = w.dot(&l.axis);
+        if wa <= 0.0 || w.dot(&l.fan_dir).abs() > wa * self.tan_half_fan {
+            return false;
+        }
+        // The lit side must be the side the camera sees.
+        let to_c = l.centre - p;
+        let nrm = V3::new(px.normal[0] as f64, px.normal[1] as f64, px.normal[2] as f64);
+        let ndc = nrm.dot(&to_c);
+        if ndc <= 0.0 {
+            return false;
+        }
+        if let Some(hit) = self.scene.cast(&l.centre, &(p - l.centre)) {
+            if hit.t < 1.0 - 1e-6 {
+                return false;
+            }
+        }
+        let dist = to_c.norm();
+        let cos = ndc / dist;
+        let fall = (self.reference_distance / dist).powi(2) * cos;
+        let mut profile = (-e).exp();
+        let mut atten = [1.0; 3];
+        if let Some(water) = &self.water {
+            let path = dist + px.range as f64;
+            let f = 1.0 - (-water.forward * path).exp();
+            profile = (1.0 - f) * profile + f * (s2 / s2h).sqrt() * (-eh).exp();
+            atten = water.c.map(|c| (-c * path).exp());
+        }
+        for c in 0..3 {
+            v[c] += fall * profile * px.refl[c] as f64 * l.colour[c] * atten[c];
+        }
+        d2 < 0.25 * g2
+    }
+
+    /// Backscatter: the sheet lights the water column in front of the surface.
+    #[inline]
+    fn add_glow(&self, px: &Pixel, l: &LaserFrame, water: &Water, v: &mut [f64; 3]) {
+        if water.backscatter <= 0.0 {
+            return;
+        }
+        let range = px.range as f64;
+        let r = V3::new(px.p[0], px.p[1], px.p[2]) / range;
+        let nr = l.n.dot(&r);
+        if nr.abs() < 1e-9 {
+            return;
+        }
+        let s = l.h / nr;
+        if s <= 0.0 || s >= range {
+            return;
+        }
+        let x = r * s;
+        let w = x - l.centre;
+        let wa = w.dot(&l.axis);
+        if wa <= 0.0 || w.dot(&l.fan_dir).abs() > wa * self.tan_half_fan {
+            return;
+        }
+        let dist = w.norm();
+        // Path length through the sheet ∝ 1/|cos|, bounded where the ray runs along it.
+        let path = (1.0 / nr.abs()).min(12.0);
+        let g = water.backscatter * (self.reference_distance / dist) * path / self.power;
+        for c in 0..3 {
+            let add = g * l.colour[c] * (-water.c[c] * (dist + s)).exp();
+            v[c] += add.min(80.0);
+        }
+    }
+
+    /// Ray-casts every pixel once: hit point, tangent-plane Jacobian, normal,
+    /// reflectance and ambient colour.
+    fn cache_view(&mut self) {
+        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
+        let mut pixels = vec![Pixel::default(); w * h];
+        let mut ambient = vec![[0.0f32; 3]; w * h];
+        let cam = &self.camera;
+        let scene = &self.scene;
+        let light = &self.spec.light;
+        let light_dir = scene
+            .world_from_camera
+            .inverse()
+            .apply_vector(&V3::from(light.direction))
+            .normalize();
+        let far = 4.0 * self.reference_distance;
+        let water = self.water.as_ref();
+        let veil = self.spec.water.veil;
+        // d(xd, yd)/d(u, v) of the camera matrix inverse.
+        let k_inv = Matrix2::new(
+            1.0 / cam.fx,
+            -cam.skew / (cam.fx * cam.fy),
+            0.0,
+            1.0 / cam.fy,
+        );
+        pixels
+            .par_chunks_mut(w)
+            .zip(ambient.par_chunks_mut(w))
+            .enumerate()
+            .for_each(|(y, (prow, arow))| {
+                for x in 0..w {
+                    let (u, v) = (x as f64, y as f64);
+                    let background = match water {
+                        Some(_) => veil,
+                        None => light.background,
+                    };
+                    arow[x] = background.map(|c| c as f32);
+                    let Some([nx, ny]) = cam.normalized_from_pixel(u, v) else {
+                        // Beyond the invertible part of the lens model: nothing seen.
+                        prow[x].p = [0.0, 0.0, far];
+                        prow[x].range = far as f32;
+                        continue;
+                    };
+                    let ray = V3::new(nx, ny, 1.0);
+                    let Some(hit) = scene.cast(&V3::zeros(), &ray) else {
+                        let p = ray.normalize() * far;
+                        prow[x].p = p.into();
+                        prow[x].range = far as f32;
+                        continue;
+                    };
+                    let mut n = hit.normal;
+                    if n.dot(&ray) > 0.0 {
+                        n = -n;
+                    }
+                    let t = hit.t;
+                    let nr = n.dot(&ray);
+                    // dP/dr on the tangent plane, then dr/d(pixel) through the lens.
+                    let dp_dr = (nalgebra::Matrix3::identity() - ray * n.transpose() / nr) * t;
+                    let jd = cam.distortion.jacobian(nx, ny);
+                    let dxy_duv = jd.try_inverse().unwrap_or_else(Matrix2::identity) * k_inv;
+                    let dr_duv = Matrix3x2::new(
+                        dxy_duv[(0, 0)],
+                        dxy_duv[(0, 1)],
+                        dxy_duv[(1, 0)],
+                        dxy_duv[(1, 1)],
+                        0.0,
+                        0.0,
+                    );
+                    let jm = dp_dr * dr_duv;
+                    let refl = scene.reflectance(&hit);
+                    let shade = light.ambient
+                        * (light.flat_fraction + (1.0 - light.flat_fraction) * n.dot(&light_dir).max(0.0));
+                    let range = hit.point.norm();
+                    let amb = [0, 1, 2].map(|c| {
+                        let a = shade * refl[c];
+                        match water {
+                            Some(wt) => {
+                                let tr = (-wt.c[c] * range).exp();
+                                a * tr + veil[c] * (1.0 - tr)
+                            }
+                            None => a,
+                        }
+                    });
+                    arow[x] = amb.map(|a| a as f32);
+                    prow[x] = Pixel {
+                        p: hit.point.into(),
+                        range: range as f32,
+                        j: [
+                            jm[(0, 0)] as f32,
+                            jm[(1, 0)] as f32,
+                            jm[(2, 0)] as f32,
+                            jm[(0, 1)] as f32,
+                            jm[(1, 1)] as f32,
+                            jm[(2, 1)] as f32,
+                        ],
+                        jf2: jm.norm_squared() as f32,
+                        normal: [n.x as f32, n.y as f32, n.z as f32],
+                        refl: refl.map(|r| r as f32),
+                        hit: true,
+                    };
+                }
+            });
+        self.pixels = pixels;
+        self.ambient = ambient;
+    }
+}
+
+fn jpeg_round_trip(img: &mut RgbImage, quality: u8) {
+    let mut buf = Vec::new();
+    let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut buf, quality.clamp(1, 100));
+    if image::ImageEncoder::write_image(
+        enc,
+        img.as_raw(),
+        img.width(),
+        img.height(),
+        image::ExtendedColorType::Rgb8,
+    )
+    .is_err()
+    {
+        return;
+    }
+    if let Ok(decoded) = image::load_from_memory_with_format(&buf, image::ImageFormat::Jpeg) {
+        *img = decoded.to_rgb8();
+    }
+}
+
+/// `2^GAUSS_BITS` equiprobable standard-normal quantiles, rescaled to unit variance.
+fn gaussian_table() -> Vec<f32> {
+    let n = 1usize << GAUSS_BITS;
+    let mut t: Vec<f64> = (0..n)
+        .map(|i| inverse_normal_cdf((i as f64 + 0.5) / n as f64))
+        .collect();
+    let var = t.iter().map(|v| v * v).sum::<f64>() / n as f64;
+    let s = 1.0 / var.sqrt();
+    t.iter_mut().for_each(|v| *v *= s);
+    t.into_iter().map(|v| v as f32).collect()
+}
+
+/// Acklam's rational approximation of the standard normal quantile (|error| < 1.2e-9).
+fn inverse_normal_cdf(p: f64) -> f64 {
+    const A: [f64; 6] = [
+        -3.969_683_028_665_376e1,
+        2.209_460_984_245_205e2,
+        -2.759_285_104_469_687e2,
+        1.383_577_518_672_69e2,
+        -3.066_479_806_614_716e1,
+        2.506_628_277_459_239,
+    ];
+    const B: [f64; 5] = [
+        -5.447_609_879_822_406e1,
+        1.615_858_368_580_409e2,
+        -1.556_989_798_598_866e2,
+        6.680_131_188_771_972e1,
+        -1.328_068_155_288_572e1,
+    ];
+    const C: [f64; 6] = [
+        -7.784_894_002_430_293e-3,
+        -3.223_964_580_411_365e-1,
+        -2.400_758_277_161_838,
+        -2.549_732_539_343_734,
+        4.374_664_141_464_968,
+        2.938_163_982_698_783,
+    ];
+    const D: [f64; 4] = [
+        7.784_695_709_041_462e-3,
+        3.224_671_290_700_398e-1,
+        2.445_134_137_142_996,
+        3.754_408_661_907_416,
+    ];
+    let lo = 0.02425;
+    if p < lo {
+        let q = (-2.0 * p.ln()).sqrt();
+        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
+            / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+    } else if p <= 1.0 - lo {
+        let q = p - 0.5;
+        let r = q * q;
+        (((((A[0] * r + A[1]) * r + A[2]) * r + A[3]) * r + A[4]) * r + A[5]) * q
+            / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
+    } else {
+        -inverse_normal_cdf(1.0 - p)
+    }
+}

@@ -1,0 +1,1209 @@
+//! Scene descriptions (the TOML `SceneSpec`) and the analytic scene in camera
+//! coordinates ([`Scene`]) with exact ray casting. The keys are documented in the
+//! parent module.
+
+use std::path::Path;
+
+use nalgebra::{Matrix3, Rotation3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::SimError;
+use crate::camera::{Camera, Distortion};
+
+type V3 = Vector3<f64>;
+
+/// Version of the scene file format that this code reads and writes.
+pub const SCENE_VERSION: u32 = 1;
+
+/// Rays start this far (scene units) beyond their origin, so a surface does not hit itself.
+const T_MIN: f64 = 1e-9;
+
+/// A scene file as written: world frame (any handedness of the author's choosing, but
+/// usually z up), camera pose, projector settings and primitives.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneSpec {
+    #[serde(default = "default_version")]
+    pub version: u32,
+    pub name: String,
+    #[serde(default)]
+    pub medium: Medium,
+    pub camera: CameraSpec,
+    #[serde(default)]
+    pub projector: ProjectorSpec,
+    #[serde(default)]
+    pub light: LightSpec,
+    #[serde(default)]
+    pub water: WaterSpec,
+    #[serde(default, rename = "primitive")]
+    pub primitives: Vec<PrimitiveSpec>,
+}
+
+fn default_version() -> u32 {
+    SCENE_VERSION
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Medium {
+    #[default]
+    Air,
+    Water,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSpec {
+    pub position: [f64; 3],
+    pub look_at: [f64; 3],
+    #[serde(default = "default_up")]
+    pub up: [f64; 3],
+    #[serde(default = "default_width")]
+    pub width: u32,
+    #[serde(default = "default_height")]
+    pub height: u32,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hfov_deg: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fx: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fy: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cx: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cy: Option<f64>,
+    #[serde(default)]
+    pub distortion: Vec<f64>,
+    #[serde(default = "default_psf")]
+    pub psf_sigma_px: f64,
+}
+
+fn default_up() -> [f64; 3] {
+    [0.0, 0.0, 1.0]
+}
+fn default_width() -> u32 {
+    1920
+}
+fn default_height() -> u32 {
+    1080
+}
+fn default_psf() -> f64 {
+    0.8
+}
+
+/// Laser colours the projector can carry.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LaserColour {
+    Red,
+    Green,
+    Blue,
+}
+
+impl LaserColour {
+    /// Response of the camera's R, G, B channels to this laser (crosstalk included).
+    pub fn rgb(self) -> [f64; 3] {
+        match self {
+            LaserColour::Red => [1.0, 0.06, 0.02],
+            LaserColour::Green => [0.08, 1.0, 0.12],
+            LaserColour::Blue => [0.03, 0.15, 1.0],
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            LaserColour::Red => "red",
+            LaserColour::Green => "green",
+            LaserColour::Blue => "blue",
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProjectorSpec {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub baseline: Option<f64>,
+    #[serde(default = "default_baseline_direction")]
+    pub baseline_direction: [f64; 3],
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wobble: Option<f64>,
+    #[serde(default = "default_wobble_period")]
+    pub wobble_period_frames: f64,
+    #[serde(default = "default_fan")]
+    pub fan_deg: f64,
+    #[serde(default = "default_colours")]
+    pub colours: [LaserColour; 2],
+    #[serde(default = "default_power")]
+    pub power: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub beam_half_thickness: Option<f64>,
+    #[serde(default = "default_sweep_period")]
+    pub sweep_period_frames: f64,
+    #[serde(default = "default_overscan")]
+    pub sweep_overscan: f64,
+    #[serde(default)]
+    pub roll_deg: f64,
+    #[serde(default = "default_roll_amplitude")]
+    pub roll_amplitude_deg: f64,
+    #[serde(default = "default_roll_period")]
+    pub roll_period_frames: f64,
+}
+
+fn default_baseline_direction() -> [f64; 3] {
+    [1.0, 0.0, 0.0]
+}
+fn default_wobble_period() -> f64 {
+    50.0
+}
+fn default_fan() -> f64 {
+    75.0
+}
+fn default_colours() -> [LaserColour; 2] {
+    [LaserColour::Red, LaserColour::Green]
+}
+fn default_power() -> f64 {
+    170.0
+}
+fn default_sweep_period() -> f64 {
+    40.0
+}
+fn default_overscan() -> f64 {
+    1.15
+}
+fn default_roll_amplitude() -> f64 {
+    25.0
+}
+fn default_roll_period() -> f64 {
+    33.0
+}
+
+impl Default for ProjectorSpec {
+    fn default() -> Self {
+        Self {
+            baseline: None,
+            baseline_direction: default_baseline_direction(),
+            wobble: None,
+            wobble_period_frames: default_wobble_period(),
+            fan_deg: default_fan(),
+            colours: default_colours(),
+            power: default_power(),
+            beam_half_thickness: None,
+            sweep_period_frames: default_sweep_period(),
+            sweep_overscan: default_overscan(),
+            roll_deg: 0.0,
+            roll_amplitude_deg: default_roll_amplitude(),
+            roll_period_frames: default_roll_period(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LightSpec {
+    #[serde(default = "default_ambient")]
+    pub ambient: f64,
+    #[serde(default = "default_light_direction")]
+    pub direction: [f64; 3],
+    #[serde(default = "default_flat")]
+    pub flat_fraction: f64,
+    #[serde(default = "default_background")]
+    pub background: [f64; 3],
+}
+
+fn default_ambient() -> f64 {
+    110.0
+}
+fn default_light_direction() -> [f64; 3] {
+    [0.3, -0.5, 1.0]
+}
+fn default_flat() -> f64 {
+    0.4
+}
+fn default_background() -> [f64; 3] {
+    [18.0, 18.0, 22.0]
+}
+
+impl Default for LightSpec {
+    fn default() -> Self {
+        Self {
+            ambient: default_ambient(),
+            direction: default_light_direction(),
+            flat_fraction: default_flat(),
+            background: default_background(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WaterSpec {
+    #[serde(default = "default_turbidity")]
+    pub turbidity: f64,
+    #[serde(default = "default_absorption")]
+    pub absorption: [f64; 3],
+    #[serde(default = "default_scattering")]
+    pub scattering: [f64; 3],
+    #[serde(default = "default_backscatter")]
+    pub backscatter: f64,
+    #[serde(default = "default_forward")]
+    pub forward_scatter: f64,
+    #[serde(default = "default_blur")]
+    pub forward_blur_mrad: f64,
+    #[serde(default = "default_veil")]
+    pub veil: [f64; 3],
+}
+
+fn default_turbidity() -> f64 {
+    1.0
+}
+fn default_absorption() -> [f64; 3] {
+    [0.40, 0.06, 0.03]
+}
+fn default_scattering() -> [f64; 3] {
+    [0.05, 0.06, 0.08]
+}
+fn default_backscatter() -> f64 {
+    5.0
+}
+fn default_forward() -> f64 {
+    0.12
+}
+fn default_blur() -> f64 {
+    4.0
+}
+fn default_veil() -> [f64; 3] {
+    [8.0, 40.0, 48.0]
+}
+
+impl Default for WaterSpec {
+    fn default() -> Self {
+        Self {
+            turbidity: default_turbidity(),
+            absorption: default_absorption(),
+            scattering: default_scattering(),
+            backscatter: default_backscatter(),
+            forward_scatter: default_forward(),
+            forward_blur_mrad: default_blur(),
+            veil: default_veil(),
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Shape {
+    Plane,
+    Rectangle,
+    Box,
+    Cylinder,
+    Sphere,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Texture {
+    None,
+    Checker,
+    #[default]
+    Noise,
+}
+
+/// One `[[primitive]]` table. Which geometric keys apply depends on `shape`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PrimitiveSpec {
+    pub shape: Shape,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub point: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub normal: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub corner: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub edge_u: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub edge_v: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub center: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rotation_deg: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub from: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub to: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub capped: Option<bool>,
+    #[serde(default = "default_albedo")]
+    pub albedo: [f64; 3],
+    #[serde(default)]
+    pub texture: Texture,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texture_scale: Option<f64>,
+    #[serde(default = "default_contrast")]
+    pub texture_contrast: f64,
+}
+
+fn default_albedo() -> [f64; 3] {
+    [0.7, 0.7, 0.7]
+}
+fn default_contrast() -> f64 {
+    0.5
+}
+
+impl SceneSpec {
+    /// Parses a scene file's text; `origin` names the file in errors (a built-in's name
+    /// for built-ins).
+    pub fn from_toml_str(text: &str, origin: &Path) -> Result<SceneSpec, SimError> {
+        let spec: SceneSpec = toml::from_str(text).map_err(|e| {
+            let (line, col, line_text) = match e.span() {
+                Some(span) => locate(text, span.start),
+                None => (0, 0, String::new()),
+            };
+            let at = if line_text.is_empty() {
+                String::new()
+            } else {
+                format!(" (at `{}`)", line_text.trim())
+            };
+            SimError::Toml {
+                path: origin.to_path_buf(),
+                line,
+                message: format!("column {col}: {}{at}", e.message()),
+            }
+        })?;
+        spec.validate(origin)?;
+        Ok(spec)
+    }
+
+    /// The scene file text (re-loadable with [`Self::from_toml_str`]).
+    pub fn to_toml_string(&self) -> Result<String, SimError> {
+        toml::to_string(self).map_err(|e| SimError::Invalid {
+            path: self.name.clone().into(),
+            message: format!("cannot write the scene as TOML: {e}"),
+        })
+    }
+
+    /// Distance from the camera to its `look_at` point: the scale that every derived
+    /// default is relative to.
+    pub fn distance(&self) -> f64 {
+        (V3::from(self.camera.look_at) - V3::from(self.camera.position)).norm()
+    }
+
+    /// The same scene at another resolution: focal lengths and principal point scale
+    /// with the width (an explicit `hfov_deg` stays as it is).
+    pub fn with_resolution(mut self, width: u32, height: u32) -> SceneSpec {
+        let c = &mut self.camera;
+        let s = width as f64 / c.width as f64;
+        c.fx = c.fx.map(|f| f * s);
+        c.fy = c.fy.map(|f| f * s);
+        c.cx = c.cx.map(|x| (x + 0.5) * s - 0.5);
+        c.cy = c.cy.map(|y| (y + 0.5) * s - 0.5 + 0.5 * (height as f64 - c.height as f64 * s));
+        c.width = width;
+        c.height = height;
+        self
+    }
+
+    fn validate(&self, origin: &Path) -> Result<(), SimError> {
+        let bad = |message: String| SimError::Invalid {
+            path: origin.to_path_buf(),
+            message,
+        };
+        if self.version != SCENE_VERSION {
+            return Err(bad(format!(
+                "key `version` is {}, expected {SCENE_VERSION}",
+                self.version
+            )));
+        }
+        let c = &self.camera;
+        if c.width == 0 || c.height == 0 {
+            return Err(bad("[camera] `width` and `height` must be positive".into()));
+        }
+        if self.distance() <= 0.0 {
+            return Err(bad(
+                "[camera] `look_at` must differ from `position`".into()
+            ));
+        }
+        if c.hfov_deg.is_none() && c.fx.is_none() {
+            return Err(bad(
+                "[camera] needs `hfov_deg` or `fx` (focal length in pixels)".into(),
+            ));
+        }
+        if let Some(h) = c.hfov_deg {
+            if !(h > 0.0 && h < 179.0) {
+                return Err(bad(format!(
+                    "[camera] `hfov_deg` = {h}, expected 0 < hfov_deg < 179"
+                )));
+            }
+        }
+        if !c.distortion.is_empty() && Distortion::from_slice(&c.distortion).is_none() {
+            return Err(bad(format!(
+                "[camera] `distortion` has {} entries, expected 4, 5 or 8 (k1, k2, p1, p2[, k3[, k4, k5, k6]])",
+                c.distortion.len()
+            )));
+        }
+        let p = &self.projector;
+        if !(p.fan_deg > 0.0 && p.fan_deg < 180.0) {
+            return Err(bad(format!(
+                "[projector] `fan_deg` = {}, expected 0 < fan_deg < 180",
+                p.fan_deg
+            )));
+        }
+        if p.colours[0] == p.colours[1] {
+            return Err(bad(
+                "[projector] `colours` must name two different colours".into()
+            ));
+        }
+        if V3::from(p.baseline_direction).norm() == 0.0 {
+            return Err(bad("[projector] `baseline_direction` is zero".into()));
+        }
+        for (key, v) in [
+            ("sweep_period_frames", p.sweep_period_frames),
+            ("roll_period_frames", p.roll_period_frames),
+            ("wobble_period_frames", p.wobble_period_frames),
+        ] {
+            if v <= 0.0 {
+                return Err(bad(format!("[projector] `{key}` must be positive")));
+            }
+        }
+        if self.primitives.is_empty() {
+            return Err(bad("the scene has no [[primitive]]".into()));
+        }
+        for (i, prim) in self.primitives.iter().enumerate() {
+            validate_primitive(prim).map_err(|m| {
+                bad(format!(
+                    "[[primitive]] #{} ({:?}): {m}",
+                    i + 1,
+                    prim.name.as_deref().unwrap_or(shape_name(prim.shape))
+                ))
+            })?;
+        }
+        Ok(())
+    }
+}
+
+fn shape_name(s: Shape) -> &'static str {
+    match s {
+        Shape::Plane => "plane",
+        Shape::Rectangle => "rectangle",
+        Shape::Box => "box",
+        Shape::Cylinder => "cylinder",
+        Shape::Sphere => "sphere",
+    }
+}
+
+fn validate_primitive(p: &PrimitiveSpec) -> Result<(), String> {
+    let given: [(&str, bool); 11] = [
+        ("point", p.point.is_some()),
+        ("normal", p.normal.is_some()),
+        ("corner", p.corner.is_some()),
+        ("edge_u", p.edge_u.is_some()),
+        ("edge_v", p.edge_v.is_some()),
+        ("center", p.center.is_some()),
+        ("size", p.size.is_some()),
+        ("rotation_deg", p.rotation_deg.is_some()),
+        ("from", p.from.is_some()),
+        ("to", p.to.is_some()),
+        ("radius", p.radius.is_some() || p.capped.is_some()),
+    ];
+    let (required, optional): (&[&str], &[&str]) = match p.shape {
+        Shape::Plane => (&["point", "normal"], &[]),
+        Shape::Rectangle => (&["corner", "edge_u", "edge_v"], &[]),
+        Shape::Box => (&["center", "size"], &["rotation_deg"]),
+        Shape::Cylinder => (&["from", "to", "radius"], &[]),
+        Shape::Sphere => (&["center", "radius"], &[]),
+    };
+    let name = shape_name(p.shape);
+    for (key, present) in given {
+        let allowed = required.contains(&key) || optional.contains(&key);
+        if present && !allowed {
+            let key = if key == "radius" && p.radius.is_none() {
+                "capped"
+            } else {
+                key
+            };
+            return Err(format!("key `{key}` does not apply to shape \"{name}\""));
+        }
+        if !present && required.contains(&key) {
+            return Err(format!(
+                "missing key `{key}` (shape \"{name}\" needs {})",
+                required.join(", ")
+            ));
+        }
+    }
+    if p.capped.is_some() && p.shape != Shape::Cylinder {
+        return Err(format!("key `capped` does not apply to shape \"{name}\""));
+    }
+    if let Some(r) = p.radius {
+        if r <= 0.0 {
+            return Err(format!("`radius` = {r}, expected > 0"));
+        }
+    }
+    if let Some(s) = p.size {
+        if s.iter().any(|&v| v <= 0.0) {
+            return Err("`size` entries must be > 0".into());
+        }
+    }
+    if let Some(n) = p.normal {
+        if V3::from(n).norm() == 0.0 {
+            return Err("`normal` is zero".into());
+        }
+    }
+    if let (Some(u), Some(v)) = (p.edge_u, p.edge_v) {
+        if V3::from(u).cross(&V3::from(v)).norm() == 0.0 {
+            return Err("`edge_u` and `edge_v` are parallel or zero".into());
+        }
+    }
+    if let (Some(a), Some(b)) = (p.from, p.to) {
+        if a == b {
+            return Err("`from` equals `to`".into());
+        }
+    }
+    if p.albedo.iter().any(|&a| !(0.0..=1.0).contains(&a)) {
+        return Err("`albedo` entries must lie in [0, 1]".into());
+    }
+    if !(0.0..=1.0).contains(&p.texture_contrast) {
+        return Err("`texture_contrast` must lie in [0, 1]".into());
+    }
+    if let Some(s) = p.texture_scale {
+        if s <= 0.0 {
+            return Err("`texture_scale` must be > 0".into());
+        }
+    }
+    Ok(())
+}
+
+/// 1-based line, 1-based column and text of the line holding byte `offset`.
+fn locate(text: &str, offset: usize) -> (usize, usize, String) {
+    let offset = offset.min(text.len());
+    let before = &text[..offset];
+    let line = before.matches('\n').count() + 1;
+    let start = before.rfind('\n').map_or(0, |p| p + 1);
+    let col = offset - start + 1;
+    let line_text = text[start..].lines().next().unwrap_or("").to_string();
+    (line, col, line_text)
+}
+
+/// The camera model a scene spec describes.
+pub fn camera_from_spec(c: &CameraSpec) -> Camera {
+    let fx = match (c.fx, c.hfov_deg) {
+        (Some(f), _) => f,
+        (None, Some(h)) => 0.5 * c.width as f64 / (0.5 * h.to_radians()).tan(),
+        (None, None) => c.width as f64, // rejected by validation
+    };
+    Camera {
+        width: c.width,
+        height: c.height,
+        fx,
+        fy: c.fy.unwrap_or(fx),
+        cx: c.cx.unwrap_or(0.5 * (c.width as f64 - 1.0)),
+        cy: c.cy.unwrap_or(0.5 * (c.height as f64 - 1.0)),
+        skew: 0.0,
+        distortion: Distortion::from_slice(&c.distortion).unwrap_or_default(),
+    }
+}
+
+/// A rigid transform `x_out = rotation * x_in + translation`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pose {
+    pub rotation: Matrix3<f64>,
+    pub translation: V3,
+}
+
+impl Pose {
+    pub fn apply(&self, p: &V3) -> V3 {
+        self.rotation * p + self.translation
+    }
+    pub fn apply_vector(&self, v: &V3) -> V3 {
+        self.rotation * v
+    }
+    pub fn inverse(&self) -> Pose {
+        let rt = self.rotation.transpose();
+        Pose {
+            rotation: rt,
+            translation: -(rt * self.translation),
+        }
+    }
+}
+
+/// The camera's pose in the world from position, look-at point and up vector
+/// (OpenCV axes: +X right, +Y down, +Z forward).
+pub fn world_from_camera(c: &CameraSpec) -> Pose {
+    let pos = V3::from(c.position);
+    let z = (V3::from(c.look_at) - pos).normalize();
+    let mut x = z.cross(&V3::from(c.up));
+    if x.norm() < 1e-9 {
+        // Looking along `up`: any right vector will do.
+        x = z.cross(&V3::x());
+        if x.norm() < 1e-9 {
+            x = z.cross(&V3::y());
+        }
+    }
+    let x = x.normalize();
+    let y = z.cross(&x);
+    Pose {
+        rotation: Matrix3::from_columns(&[x, y, z]),
+        translation: pos,
+    }
+}
+
+/// A ray's first intersection with the scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    /// Ray parameter: `point = origin + t * dir` (in units of `dir`'s length).
+    pub t: f64,
+    pub point: V3,
+    /// Unit outward surface normal (for planes and rectangles, the normal as given;
+    /// open cylinders report the outward radial normal on both sides).
+    pub normal: V3,
+    /// Index of the primitive in the scene file's order.
+    pub primitive: usize,
+}
+
+/// Geometry in camera coordinates.
+#[derive(Clone, Debug)]
+enum Geometry {
+    Plane {
+        n: V3,
+        d: f64,
+    },
+    Rect {
+        o: V3,
+        n: V3,
+        du: V3,
+        dv: V3,
+    },
+    Box {
+        c: V3,
+        /// Rows are the box axes: `local = axes * (p - c)`.
+        axes: Matrix3<f64>,
+        half: V3,
+    },
+    Cylinder {
+        a: V3,
+        w: V3,
+        len: f64,
+        r: f64,
+        capped: bool,
+    },
+    Sphere {
+        c: V3,
+        r: f64,
+    },
+}
+
+/// Surface appearance of one primitive.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Material {
+    pub albedo: [f64; 3],
+    pub texture: Texture,
+    pub texture_scale: f64,
+    pub texture_contrast: f64,
+}
+
+/// The scene in camera coordinates, ready for ray casting.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub name: String,
+    pub medium: Medium,
+    pub world_from_camera: Pose,
+    pub materials: Vec<Material>,
+    geometry: Vec<Geometry>,
+}
+
+impl Scene {
+    /// Transforms a validated spec into camera coordinates.
+    pub fn from_spec(spec: &SceneSpec) -> Scene {
+        let world_from_camera = world_from_camera(&spec.camera);
+        let cam = world_from_camera.inverse();
+        let pt = |p: [f64; 3]| cam.apply(&V3::from(p));
+        let vec = |v: [f64; 3]| cam.apply_vector(&V3::from(v));
+        let zero = [0.0; 3];
+        let default_scale = 0.05 * spec.distance();
+        let mut geometry = Vec::with_capacity(spec.primitives.len());
+        let mut materials = Vec::with_capacity(spec.primitives.len());
+        for p in &spec.primitives {
+            let g = match p.shape {
+                Shape::Plane => {
+                    let n = vec(p.normal.unwrap_or([0.0, 0.0, 1.0])).normalize();
+                    Geometry::Plane {
+                        n,
+                        d: n.dot(&pt(p.point.unwrap_or(zero))),
+                    }
+                }
+                Shape::Rectangle => {
+                    let o = pt(p.corner.unwrap_or(zero));
+                    let eu = vec(p.edge_u.unwrap_or([1.0, 0.0, 0.0]));
+                    let ev = vec(p.edge_v.unwrap_or([0.0, 1.0, 0.0]));
+                    let n = eu.cross(&ev).normalize();
+                    // Dual basis: (q - o)·du and (q - o)·dv are the edge coordinates.
+                    let a = ev.cross(&n);
+                    let b = n.cross(&eu);
+                    Geometry::Rect {
+                        o,
+                        n,
+                        du: a / eu.dot(&a),
+                        dv: b / ev.dot(&b),
+                    }
+                }
+                Shape::Box => {
+                    let [rx, ry, rz] = p.rotation_deg.unwrap_or(zero);
+                    let r_world = Rotation3::from_euler_angles(
+                        rx.to_radians(),
+                        ry.to_radians(),
+                        rz.to_radians(),
+                    );
+                    let r_cam = cam.rotation * r_world.matrix();
+                    let s = p.size.unwrap_or([1.0; 3]);
+                    Geometry::Box {
+                        c: pt(p.center.unwrap_or(zero)),
+                        axes: r_cam.transpose(),
+                        half: V3::new(0.5 * s[0], 0.5 * s[1], 0.5 * s[2]),
+                    }
+                }
+                Shape::Cylinder => {
+                    let a = pt(p.from.unwrap_or(zero));
+                    let b = pt(p.to.unwrap_or([0.0, 0.0, 1.0]));
+                    let axis = b - a;
+                    Geometry::Cylinder {
+                        a,
+                        w: axis.normalize(),
+                        len: axis.norm(),
+                        r: p.radius.unwrap_or(1.0),
+                        capped: p.capped.unwrap_or(true),
+                    }
+                }
+                Shape::Sphere => Geometry::Sphere {
+                    c: pt(p.center.unwrap_or(zero)),
+                    r: p.radius.unwrap_or(1.0),
+                },
+            };
+            geometry.push(g);
+            materials.push(Material {
+                albedo: p.albedo,
+                texture: p.texture,
+                texture_scale: p.texture_scale.unwrap_or(default_scale),
+                texture_contrast: p.texture_contrast,
+            });
+        }
+        Scene {
+            name: spec.name.clone(),
+            medium: spec.medium,
+            world_from_camera,
+            materials,
+            geometry,
+        }
+    }
+
+    /// Number of primitives.
+    pub fn len(&self) -> usize {
+        self.geometry.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.geometry.is_empty()
+    }
+
+    /// Z (camera coordinates) of the first surface along the ray from the camera centre,
+    /// or `None` when the ray leaves the scene.
+    pub fn ray_depth(&self, ray_in_camera: &V3) -> Option<f64> {
+        self.cast(&V3::zeros(), ray_in_camera).map(|h| h.point.z)
+    }
+
+    /// First intersection of the ray `origin + t * dir`, `t > 0`, with the scene.
+    pub fn cast(&self, origin: &V3, dir: &V3) -> Option<Hit> {
+        let len = dir.norm();
+        if len == 0.0 || !len.is_finite() {
+            return None;
+        }
+        let d = dir / len;
+        let mut best: Option<(f64, V3, usize)> = None;
+        for (i, g) in self.geometry.iter().enumerate() {
+            let t_max = best.map_or(f64::INFINITY, |b| b.0);
+            if let Some((t, n)) = intersect(g, origin, &d, t_max) {
+                best = Some((t, n, i));
+            }
+        }
+        best.map(|(t, normal, primitive)| Hit {
+            t: t / len,
+            point: origin + d * t,
+            normal,
+            primitive,
+        })
+    }
+
+    /// Albedo times texture at a hit, per channel, in `[0, 1]`.
+    pub fn reflectance(&self, hit: &Hit) -> [f64; 3] {
+        let m = &self.materials[hit.primitive];
+        let p = self.world_from_camera.apply(&hit.point) / m.texture_scale;
+        let f = match m.texture {
+            Texture::None => 1.0,
+            Texture::Checker => {
+                // Offset by a quarter cell so that axis-aligned faces do not sit on a
+                // cell boundary.
+                let s = (p.x + 0.25).floor() + (p.y + 0.25).floor() + (p.z + 0.25).floor();
+                if s.rem_euclid(2.0) < 0.5 {
+                    1.0
+                } else {
+                    0.0
+                }
+            }
+            Texture::Noise => fbm(&p, hit.primitive as u64),
+        };
+        let k = 1.0 - m.texture_contrast * (1.0 - f);
+        m.albedo.map(|a| a * k)
+    }
+}
+
+/// Nearest intersection with `T_MIN < t < t_max` along a unit direction: `(t, normal)`.
+fn intersect(g: &Geometry, o: &V3, d: &V3, t_max: f64) -> Option<(f64, V3)> {
+    let ok = |t: f64| t > T_MIN && t < t_max;
+    match g {
+        Geometry::Plane { n, d: off } => {
+            let den = n.dot(d);
+            if den == 0.0 {
+                return None;
+            }
+            let t = (off - n.dot(o)) / den;
+            ok(t).then_some((t, *n))
+        }
+        Geometry::Rect { o: c, n, du, dv } => {
+            let den = n.dot(d);
+            if den == 0.0 {
+                return None;
+            }
+            let t = (n.dot(c) - n.dot(o)) / den;
+            if !ok(t) {
+                return None;
+            }
+            let q = o + d * t - c;
+            let (s, r) = (q.dot(du), q.dot(dv));
+            ((0.0..=1.0).contains(&s) && (0.0..=1.0).contains(&r)).then_some((t, *n))
+        }
+        Geometry::Box { c, axes, half } => {
+            let lo = axes * (o - c);
+            let ld = axes * d;
+            let mut t_near = f64::NEG_INFINITY;
+            let mut t_far = f64::INFINITY;
+            let (mut ax_near, mut ax_far) = (0, 0);
+            for k in 0..3 {
+                if ld[k] == 0.0 {
+                    if lo[k].abs() > half[k] {
+                        return None;
+                    }
+                    continue;
+                }
+                let t1 = (-half[k] - lo[k]) / ld[k];
+                let t2 = (half[k] - lo[k]) / ld[k];
+                let (a, b) = if t1 < t2 { (t1, t2) } else { (t2, t1) };
+                if a > t_near {
+                    t_near = a;
+                    ax_near = k;
+                }
+                if b < t_far {
+                    t_far = b;
+                    ax_far = k;
+                }
+            }
+            if t_near > t_far {
+                return None;
+            }
+            let row = |k: usize| V3::new(axes[(k, 0)], axes[(k, 1)], axes[(k, 2)]);
+            if ok(t_near) {
+                // Entering through the face whose normal opposes the ray.
+                let s = if ld[ax_near] > 0.0 { -1.0 } else { 1.0 };
+                Some((t_near, row(ax_near) * s))
+            } else if t_near <= T_MIN && ok(t_far) {
+                // Inside: leaving through the face along the ray.
+                let s = if ld[ax_far] > 0.0 { 1.0 } else { -1.0 };
+                Some((t_far, row(ax_far) * s))
+            } else {
+                None
+            }
+        }
+        Geometry::Cylinder {
+            a,
+            w,
+            len,
+            r,
+            capped,
+        } => {
+            let oc = o - a;
+            let dw = d.dot(w);
+            let ow = oc.dot(w);
+            let dp = d - w * dw;
+            let op = oc - w * ow;
+            let mut best: Option<(f64, V3)> = None;
+            let qa = dp.norm_squared();
+            if qa > 0.0 {
+                let qb = dp.dot(&op);
+                let qc = op.norm_squared() - r * r;
+                let disc = qb * qb - qa * qc;
+                if disc >= 0.0 {
+                    let sq = disc.sqrt();
+                    for t in [(-qb - sq) / qa, (-qb + sq) / qa] {
+                        let s = ow + t * dw;
+                        if ok(t) && (0.0..=*len).contains(&s) {
+                            let radial = op + dp * t;
+                            best = Some((t, radial / *r));
+                            break;
+                        }
+                    }
+                }
+            }
+            if *capped && dw != 0.0 {
+                for (s0, sign) in [(0.0, -1.0), (*len, 1.0)] {
+                    let t = (s0 - ow) / dw;
+                    if ok(t) && best.is_none_or(|b| t < b.0) {
+                        let radial = op + dp * t;
+                        if radial.norm_squared() <= r * r {
+                            best = Some((t, w * sign));
+                        }
+                    }
+                }
+            }
+            best
+        }
+        Geometry::Sphere { c, r } => {
+            let oc = o - c;
+            let b = oc.dot(d);
+            let cc = oc.norm_squared() - r * r;
+            let disc = b * b - cc;
+            if disc < 0.0 {
+                return None;
+            }
+            let sq = disc.sqrt();
+            for t in [-b - sq, -b + sq] {
+                if ok(t) {
+                    let p = o + d * t;
+                    return Some((t, (p - c) / *r));
+                }
+            }
+            None
+        }
+    }
+}
+
+/// SplitMix64 finaliser: a good 64-bit hash of a 64-bit value.
+#[inline]
+pub(crate) fn mix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+fn lattice(i: i64, j: i64, k: i64, salt: u64) -> f64 {
+    let h = mix64(
+        (i as u64).wrapping_mul(0x8CB9_2BA7_2F3D_8DD7)
+            ^ (j as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ (k as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+            ^ salt.wrapping_mul(0x1656_67B1_9E37_79F9),
+    );
+    (h >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// Smooth value noise in `[0, 1]`.
+fn value_noise(p: &V3, salt: u64) -> f64 {
+    let (fx, fy, fz) = (p.x.floor(), p.y.floor(), p.z.floor());
+    let (i, j, k) = (fx as i64, fy as i64, fz as i64);
+    let s = |t: f64| t * t * (3.0 - 2.0 * t);
+    let (u, v, w) = (s(p.x - fx), s(p.y - fy), s(p.z - fz));
+    let lerp = |a: f64, b: f64, t: f64| a + (b - a) * t;
+    let mut c = [0.0; 8];
+    for (n, cn) in c.iter_mut().enumerate() {
+        *cn = lattice(
+            i + (n & 1) as i64,
+            j + ((n >> 1) & 1) as i64,
+            k + ((n >> 2) & 1) as i64,
+            salt,
+        );
+    }
+    let x0 = lerp(c[0], c[1], u);
+    let x1 = lerp(c[2], c[3], u);
+    let x2 = lerp(c[4], c[5], u);
+    let x3 = lerp(c[6], c[7], u);
+    lerp(lerp(x0, x1, v), lerp(x2, x3, v), w)
+}
+
+/// Three octaves of value noise, stretched to use most of `[0, 1]`.
+fn fbm(p: &V3, salt: u64) -> f64 {
+    let mut sum = 0.0;
+    let mut amp = 0.5;
+    let mut q = *p;
+    for o in 0..3 {
+        sum += amp * value_noise(&q, salt.wrapping_add(o));
+        q *= 2.03;
+        amp *= 0.5;
+    }
+    ((sum / 0.875 - 0.5) * 1.6 + 0.5).clamp(0.0, 1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A scene whose camera sits at the world origin looking along world +Z with world
+    /// +Y down, so world and camera coordinates coincide.
+    fn scene_of(prims: &str) -> Scene {
+        let text = format!(
+            "name = \"t\"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 0, 1]\nup = [0, -1, 0]\nhfov_deg = 60\n{prims}"
+        );
+        let spec = SceneSpec::from_toml_str(&text, Path::new("test.toml")).expect("valid");
+        let s = Scene::from_spec(&spec);
+        assert!(
+            (s.world_from_camera.rotation - Matrix3::identity()).norm() < 1e-12,
+            "camera frame is the world frame"
+        );
+        s
+    }
+
+    fn close(a: &V3, b: [f64; 3]) -> bool {
+        (a - V3::from(b)).norm() < 1e-9
+    }
+
+    #[test]
+    fn plane_and_rectangle() {
+        let s = scene_of(
+            "[[primitive]]\nshape = \"plane\"\npoint = [0, 0, 5]\nnormal = [0, 0, -1]\n\
+             [[primitive]]\nshape = \"rectangle\"\ncorner = [-1, -1, 2]\nedge_u = [2, 0, 0]\nedge_v = [0, 1, 0]\n",
+        );
+        // Through the rectangle (y in [-1, 0]) at z = 2.
+        let h = s.cast(&V3::zeros(), &V3::new(0.1, -0.2, 1.0)).expect("hit");
+        assert_eq!(h.primitive, 1);
+        assert!(close(&h.point, [0.2, -0.4, 2.0]));
+        assert!((h.t - 2.0).abs() < 1e-12);
+        assert!(close(&h.normal, [0.0, 0.0, 1.0]));
+        // Below the rectangle: the plane at z = 5.
+        let h = s.cast(&V3::zeros(), &V3::new(0.0, 0.1, 1.0)).expect("hit");
+        assert_eq!(h.primitive, 0);
+        assert!(close(&h.point, [0.0, 0.5, 5.0]));
+        assert!((s.ray_depth(&V3::new(0.3, 0.3, 1.0)).expect("hit") - 5.0).abs() < 1e-12);
+        // Away from the plane: nothing.
+        assert!(s.cast(&V3::zeros(), &V3::new(0.0, 0.0, -1.0)).is_none());
+        // Parallel to the plane.
+        assert!(s.cast(&V3::new(0.0, 0.0, 1.0), &V3::x()).is_none());
+    }
+
+    #[test]
+    fn rotated_box_outside_and_inside() {
+        // A unit cube at z = 4 turned 45° about the viewing axis (world z = camera z).
+        let s = scene_of(
+            "[[primitive]]\nshape = \"box\"\ncenter = [0, 0, 4]\nsize = [1, 1, 1]\nrotation_deg = [0, 0, 45]\n",
+        );
+        let h = s.cast(&V3::zeros(), &V3::z()).expect("hit");
+        assert!(close(&h.point, [0.0, 0.0, 3.5]));
+        assert!(close(&h.normal, [0.0, 0.0, -1.0]));
+        // Along +x at z = 4 from the side: the corner of the turned square at x = -√2/2.
+        let h = s.cast(&V3::new(-3.0, 0.0, 4.0), &V3::x()).expect("hit");
+        assert!((h.point.x + 0.5f64.sqrt()).abs() < 1e-9);
+        // x = 0.6 misses an axis-aligned cube but hits the turned one (|x| < 0.707).
+        assert!(s.cast(&V3::new(0.6, 0.0, 0.0), &V3::z()).is_some());
+        assert!(s.cast(&V3::new(0.75, 0.0, 0.0), &V3::z()).is_none());
+        // From inside: the far face, normal pointing out along the ray.
+        let h = s.cast(&V3::new(0.0, 0.0, 4.0), &V3::z()).expect("hit");
+        assert!(close(&h.point, [0.0, 0.0, 4.5]));
+        assert!(close(&h.normal, [0.0, 0.0, 1.0]));
+        // Behind the ray origin.
+        assert!(s.cast(&V3::new(0.0, 0.0, 6.0), &V3::z()).is_none());
+    }
+
+    #[test]
+    fn capped_and_open_cylinders() {
+        // Axis along world x from x = -1 to 1, radius 0.5, at z = 3.
+        let s = scene_of(
+            "[[primitive]]\nshape = \"cylinder\"\nfrom = [-1, 0, 3]\nto = [1, 0, 3]\nradius = 0.5\n",
+        );
+        let h = s.cast(&V3::zeros(), &V3::z()).expect("hit");
+        assert!(close(&h.point, [0.0, 0.0, 2.5]));
+        assert!(close(&h.normal, [0.0, 0.0, -1.0]));
+        // Along the axis from outside: the cap at x = -1.
+        let h = s.cast(&V3::new(-5.0, 0.1, 3.0), &V3::x()).expect("hit");
+        assert!(close(&h.point, [-1.0, 0.1, 3.0]));
+        assert!(close(&h.normal, [-1.0, 0.0, 0.0]));
+        // Beyond the finite length: miss.
+        assert!(s.cast(&V3::new(1.2, 0.0, 0.0), &V3::z()).is_none());
+
+        let s = scene_of(
+            "[[primitive]]\nshape = \"cylinder\"\nfrom = [-1, 0, 3]\nto = [1, 0, 3]\nradius = 0.5\ncapped = false\n",
+        );
+        // Open: along the axis passes straight through.
+        assert!(s.cast(&V3::new(-5.0, 0.1, 3.0), &V3::x()).is_none());
+        // Looking into the open end at an angle: hits the inside wall.
+        let dir = V3::new(1.0, 0.0, 0.25);
+        let h = s.cast(&V3::new(-2.0, 0.0, 3.0), &dir).expect("inner wall");
+        // z = 3 + 0.25 (x + 2) reaches the wall z = 3.5 at x = 0.
+        assert!(close(&h.point, [0.0, 0.0, 3.5]));
+        assert!(close(&h.normal, [0.0, 0.0, 1.0]));
+    }
+
+    #[test]
+    fn sphere_nearest_hit_and_inside() {
+        let s = scene_of(
+            "[[primitive]]\nshape = \"sphere\"\ncenter = [0, 0, 6]\nradius = 1\n\
+             [[primitive]]\nshape = \"sphere\"\ncenter = [0, 0, 3]\nradius = 0.5\n",
+        );
+        // The nearer sphere wins although it is listed second.
+        let h = s.cast(&V3::zeros(), &V3::new(0.0, 0.0, 2.0)).expect("hit");
+        assert_eq!(h.primitive, 1);
+        assert!(close(&h.point, [0.0, 0.0, 2.5]));
+        assert!((h.t - 1.25).abs() < 1e-12, "t is in units of dir");
+        // Tangent offset ray: x = 0.3 hits the small sphere at z = 3 - sqrt(0.25 - 0.09).
+        let h = s.cast(&V3::new(0.3, 0.0, 0.0), &V3::z()).expect("hit");
+        assert!((h.point.z - (3.0 - 0.16f64.sqrt())).abs() < 1e-12);
+        // From inside the big sphere: its far side.
+        let h = s.cast(&V3::new(0.0, 0.0, 6.0), &V3::y()).expect("hit");
+        assert!(close(&h.point, [0.0, 1.0, 6.0]));
+        // Misses.
+        assert!(s.cast(&V3::zeros(), &V3::new(1.0, 0.0, 0.1)).is_none());
+        assert!(s.cast(&V3::new(0.0, 0.0, 8.0), &V3::z()).is_none());
+    }
+
+    #[test]
+    fn unknown_key_and_wrong_type_name_key_and_line() {
+        let text = "name = \"t\"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 1, 0]\nhfov_deg = 60\nfocal = 3\n";
+        let e = SceneSpec::from_toml_str(text, Path::new("my.toml")).expect_err("unknown key");
+        let m = e.to_string();
+        assert!(m.contains("my.toml:6"), "{m}");
+        assert!(m.contains("focal"), "{m}");
+
+        let text = "name = \"t\"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 1, 0]\nhfov_deg = 60\n\
+                    [[primitive]]\nshape = \"sphere\"\ncenter = [0, 2, 0]\nradius = \"big\"\n";
+        let m = SceneSpec::from_toml_str(text, Path::new("my.toml"))
+            .expect_err("wrong type")
+            .to_string();
+        assert!(m.contains("my.toml:9"), "{m}");
+        assert!(m.contains("radius"), "{m}");
+
+        let text = "name = \"t\"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 1, 0]\nhfov_deg = 60\n\
+                    [[primitive]]\nshape = \"sphere\"\ncenter = [0, 2, 0]\n";
+        let m = SceneSpec::from_toml_str(text, Path::new("my.toml"))
+            .expect_err("missing radius")
+            .to_string();
+        assert!(m.contains("radius") && m.contains("my.toml"), "{m}");
+    }
+
+    #[test]
+    fn textures_vary_and_stay_in_range() {
+        let s = scene_of(
+            "[[primitive]]\nshape = \"plane\"\npoint = [0, 0, 5]\nnormal = [0, 0, -1]\ntexture_scale = 0.2\ntexture_contrast = 0.6\nalbedo = [1, 0.5, 0.25]\n",
+        );
+        let mut lo = f64::INFINITY;
+        let mut hi = f64::NEG_INFINITY;
+        for i in 0..200 {
+            let x = -0.5 + i as f64 * 0.005;
+            let h = s.cast(&V3::zeros(), &V3::new(x, 0.1, 1.0)).expect("hit");
+            let r = s.reflectance(&h);
+            assert!((r[1] - 0.5 * r[0]).abs() < 1e-12);
+            lo = lo.min(r[0]);
+            hi = hi.max(r[0]);
+        }
+        assert!(lo >= 0.4 - 1e-12 && hi <= 1.0);
+        assert!(hi - lo > 0.2, "texture visible: {lo}..{hi}");
+    }
+}
