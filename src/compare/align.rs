@@ -105,9 +105,11 @@ pub enum AlignMode {
 pub struct AlignParams {
     /// At most this many evenly spread cloud points drive the estimate.
     pub max_samples: usize,
+    /// Per stage (median and least squares for the scale; ICP for the similarity):
+    /// point-to-point ICP converges slowly along the scene's weak directions.
     pub max_iterations: usize,
-    /// Pairs kept per iteration: the closest this fraction. Set it below the share of
-    /// the cloud that overlaps the reference.
+    /// Pairs kept per iteration: those closer than three times this quantile of the
+    /// pair distances. Set it below the share of the cloud that overlaps the reference.
     pub keep_fraction: f64,
     /// Stop when the relative parameter change of an iteration falls below this.
     pub tolerance: f64,
@@ -117,9 +119,9 @@ impl Default for AlignParams {
     fn default() -> Self {
         Self {
             max_samples: 200_000,
-            max_iterations: 100,
+            max_iterations: 300,
             keep_fraction: 0.5,
-            tolerance: 1e-9,
+            tolerance: 1e-8,
         }
     }
 }
@@ -145,13 +147,22 @@ pub enum AlignError {
     Degenerate,
 }
 
-/// Every `k`-th finite point so that at most `max` remain.
+/// At most `max` finite points, spread over the whole cloud by the golden-ratio
+/// sequence `frac(i·φ)` rather than a fixed stride, which would alias with any periodic
+/// order of the points (alternating lasers, interleaved surfaces).
 fn samples(points: &[[f32; 3]], max: usize) -> Vec<[f32; 3]> {
-    let step = points.len().div_ceil(max.max(1)).max(1);
-    points
-        .iter()
-        .step_by(step)
-        .filter(|p| p.iter().all(|c| c.is_finite()))
+    let finite = |p: &&[f32; 3]| p.iter().all(|c| c.is_finite());
+    let n = points.len();
+    if n <= max {
+        return points.iter().filter(finite).copied().collect();
+    }
+    const PHI_FRAC: f64 = 0.618_033_988_749_894_8;
+    (0..max)
+        .map(|i| {
+            let f = (i as f64 * PHI_FRAC).fract();
+            &points[((f * n as f64) as usize).min(n - 1)]
+        })
+        .filter(finite)
         .copied()
         .collect()
 }
@@ -189,15 +200,18 @@ fn pairs(sample: &[[f32; 3]], tree: &KdTree, t: &Similarity) -> Vec<Pair> {
         .collect()
 }
 
-/// Keeps the closest `fraction` of `pairs` (at least 3 when there are), returning the
-/// RMS distance of the kept ones.
-fn trim(pairs: &mut Vec<Pair>, fraction: f64) -> f64 {
-    let keep = ((pairs.len() as f64 * fraction.clamp(0.0, 1.0)).ceil() as usize)
-        .max(3)
-        .min(pairs.len());
-    if keep < pairs.len() {
-        pairs.select_nth_unstable_by(keep, |a, b| a.distance.total_cmp(&b.distance));
-        pairs.truncate(keep);
+/// Keeps the pairs closer than three times the `fraction`-quantile of the distances (at
+/// least the quantile's own pairs stay, and all within `at_least`), returning the RMS distance of the kept ones.
+///
+/// A threshold rather than a fixed share: keeping exactly the closest share prefers one
+/// side of a two-sided error distribution whenever the estimate is slightly off, which
+/// feeds back into the estimate and biases it.
+fn trim(pairs: &mut Vec<Pair>, fraction: f64, at_least: f64) -> f64 {
+    if pairs.len() > 3 {
+        let k = ((pairs.len() - 1) as f64 * fraction.clamp(0.0, 1.0)).round() as usize;
+        let (_, q, _) = pairs.select_nth_unstable_by(k, |a, b| a.distance.total_cmp(&b.distance));
+        let threshold = (3.0 * q.distance).max(at_least);
+        pairs.retain(|p| p.distance <= threshold);
     }
     let sum: f64 = pairs.iter().map(|p| p.distance * p.distance).sum();
     (sum / pairs.len().max(1) as f64).sqrt()
@@ -205,7 +219,8 @@ fn trim(pairs: &mut Vec<Pair>, fraction: f64) -> f64 {
 
 /// Scale about the camera centre: starts from the ratio of median ranges, then iterates
 /// nearest neighbours and the median, over the closest pairs, of the per-pair scale
-/// `(q · p) / (p · p)` that brings `p` onto the projection of its match `q` on `p`'s ray.
+/// `(q · p) / (p · p)` that brings `p` onto the projection of its match `q` on `p`'s ray;
+/// then refines by least squares over the closest pairs.
 pub fn align_scale(
     cloud: &[[f32; 3]],
     reference: &[[f32; 3]],
@@ -224,25 +239,36 @@ pub fn align_scale(
     };
     let mut ratios = Vec::with_capacity(sample.len());
     let (mut iterations, mut kept, mut rms) = (0, 0, f64::NAN);
-    for it in 1..=params.max_iterations {
-        iterations = it;
-        let mut p = pairs(&sample, tree, &t);
-        rms = trim(&mut p, params.keep_fraction);
-        kept = p.len();
-        ratios.clear();
-        ratios.extend(
-            p.iter()
-                .filter(|p| p.from.norm_squared() > 0.0)
-                .map(|p| p.to.dot(&p.from) / p.from.norm_squared()),
-        );
-        let s = median_mut(&mut ratios);
-        if !(s.is_finite() && s > 0.0) {
-            return Err(AlignError::Degenerate);
-        }
-        let change = (s - t.scale).abs() / t.scale;
-        t.scale = s;
-        if change < params.tolerance {
-            break;
+    // Median of ratios first (robust from a far start), then least squares on the kept
+    // pairs, `s = Σ q·p / Σ p·p`, whose noise averages out where a median of a
+    // two-sided error distribution would sit anywhere in its gap.
+    for least_squares in [false, true] {
+        for _ in 0..params.max_iterations {
+            iterations += 1;
+            let mut p = pairs(&sample, tree, &t);
+            rms = trim(&mut p, params.keep_fraction, 0.0);
+            kept = p.len();
+            let s = if least_squares {
+                let num: f64 = p.iter().map(|p| p.to.dot(&p.from)).sum();
+                let den: f64 = p.iter().map(|p| p.from.norm_squared()).sum();
+                num / den
+            } else {
+                ratios.clear();
+                ratios.extend(
+                    p.iter()
+                        .filter(|p| p.from.norm_squared() > 0.0)
+                        .map(|p| p.to.dot(&p.from) / p.from.norm_squared()),
+                );
+                median_mut(&mut ratios)
+            };
+            if !(s.is_finite() && s > 0.0) {
+                return Err(AlignError::Degenerate);
+            }
+            let change = (s - t.scale).abs() / t.scale;
+            t.scale = s;
+            if change < params.tolerance {
+                break;
+            }
         }
     }
     Ok(Alignment {
@@ -269,11 +295,17 @@ pub fn align_similarity(
     let (mut iterations, mut kept, mut rms) = (start.iterations, start.pairs, start.rms);
     let mut from = Vec::new();
     let mut to = Vec::new();
+    // A far start can leave a whole part of the scene beyond the trimming threshold, and
+    // ICP then slides into a fit of the rest (a wall and a sphere fit under any rotation
+    // about the sphere's centre along the wall's normal). So the threshold starts at a
+    // tenth of the cloud's size and shrinks geometrically towards the adaptive one.
+    let size = super::bbox_diagonal(&sample) * t.scale;
     let mut last_rms = f64::INFINITY;
     for it in 1..=params.max_iterations {
         iterations = start.iterations + it;
         let mut p = pairs(&sample, tree, &t);
-        rms = trim(&mut p, params.keep_fraction);
+        let anneal = 0.1 * size * 0.8f64.powi(it as i32 - 1);
+        rms = trim(&mut p, params.keep_fraction, anneal);
         kept = p.len();
         from.clear();
         to.clear();
@@ -285,9 +317,7 @@ pub fn align_similarity(
             + (next.scale - t.scale).abs() / t.scale
             + (next.translation - t.translation).norm() / (extent * t.scale);
         t = next;
-        // Trimmed ICP with a fixed fraction decreases the trimmed error monotonically;
-        // stop on a vanishing step or once it stops improving.
-        if change < params.tolerance || (rms >= last_rms && change < 1e-6) {
+        if anneal < rms && (change < params.tolerance || (rms >= last_rms && change < 1e-6)) {
             break;
         }
         last_rms = rms;

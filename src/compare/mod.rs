@@ -258,3 +258,213 @@ impl ReferenceComparison {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::kdtree::tests::Rng;
+    use super::*;
+    use nalgebra::{Rotation3, Vector3};
+
+    /// A tilted wall `z = 3 + 0.3 x + 0.2 y` over `|x|, |y| ≤ 0.6` and spheres of radius
+    /// 0.3 at `(0.2, 0.1, 2.2)` and 0.15 at `(-0.3, -0.25, 2.5)` (two, so that no rotation
+    /// maps the scene onto itself), each sample as (point, unit normal).
+    fn wall(x: f64, y: f64) -> (Vector3<f64>, Vector3<f64>) {
+        let n = Vector3::new(-0.3, -0.2, 1.0).normalize();
+        (Vector3::new(x, y, 3.0 + 0.3 * x + 0.2 * y), n)
+    }
+
+    fn ball(dir: Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+        let d = dir.normalize();
+        (Vector3::new(0.2, 0.1, 2.2) + d * 0.3, d)
+    }
+
+    fn small_ball(dir: Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+        let d = dir.normalize();
+        (Vector3::new(-0.3, -0.25, 2.5) + d * 0.15, d)
+    }
+
+    /// Fibonacci lattice direction `i` of `n`.
+    fn fibonacci(i: usize, n: usize) -> Vector3<f64> {
+        let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+        let r = (1.0 - z * z).sqrt();
+        let phi = i as f64 * std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        Vector3::new(r * phi.cos(), r * phi.sin(), z)
+    }
+
+    fn f32s(v: &Vector3<f64>) -> [f32; 3] {
+        [v.x as f32, v.y as f32, v.z as f32]
+    }
+
+    /// Dense regular samples of both surfaces (spacing about 3 mm).
+    fn reference() -> Vec<[f32; 3]> {
+        let mut out = Vec::new();
+        let m = 400;
+        for i in 0..m {
+            for j in 0..m {
+                let (x, y) = (
+                    -0.6 + 1.2 * i as f64 / (m - 1) as f64,
+                    -0.6 + 1.2 * j as f64 / (m - 1) as f64,
+                );
+                out.push(f32s(&wall(x, y).0));
+            }
+        }
+        let n = 130_000;
+        out.extend((0..n).map(|i| f32s(&ball(fibonacci(i, n)).0)));
+        let n = 32_000;
+        out.extend((0..n).map(|i| f32s(&small_ball(fibonacci(i, n)).0)));
+        out
+    }
+
+    /// Random surface samples, each with its normal.
+    fn random_surface(rng: &mut Rng, n: usize) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+        (0..n)
+            .map(|i| {
+                let dir = Vector3::new(rng.normal(), rng.normal(), rng.normal());
+                match i % 4 {
+                    0 | 2 => wall(rng.uniform() * 1.2 - 0.6, rng.uniform() * 1.2 - 0.6),
+                    1 => ball(dir),
+                    _ => small_ball(dir),
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn scale_alignment_recovers_scale_and_normal_offset() {
+        let reference = reference();
+        let mut rng = Rng(7);
+        let truth_scale = 1.37;
+        let offset = 0.01;
+        // Offsets of both signs: a one-sided offset on a wall is itself a scale change.
+        let cloud: Vec<[f32; 3]> = random_surface(&mut rng, 20_000)
+            .iter()
+            .enumerate()
+            .map(|(i, (p, n))| {
+                let sign = if (i / 2) % 2 == 0 { 1.0 } else { -1.0 };
+                f32s(&((p + n * (sign * offset)) / truth_scale))
+            })
+            .collect();
+        let params = CompareParams {
+            align: AlignMode::Scale,
+            thresholds: Some(vec![0.005, 0.02]),
+            ..Default::default()
+        };
+        let c = compare_to_reference(&cloud, &reference, &params, &no_progress).expect("compare");
+        let s = c.alignment.transform.scale;
+        assert!((s / truth_scale - 1.0).abs() < 1e-3, "scale {s}");
+        assert!(
+            (c.stats.median - offset).abs() < 4e-4,
+            "median {}",
+            c.stats.median
+        );
+        assert_eq!(c.stats.count, cloud.len());
+        assert!(c.stats.over[0].fraction > 0.99);
+        assert!(c.stats.over[1].fraction < 0.01);
+        // Without alignment the cloud is far off.
+        let none =
+            compare_to_reference(&cloud, &reference, &CompareParams::default(), &no_progress)
+                .expect("compare");
+        assert!(none.stats.median > 0.1, "{}", none.stats.median);
+    }
+
+    #[test]
+    fn similarity_icp_recovers_a_known_transform_with_partial_overlap() {
+        let reference = reference();
+        let mut rng = Rng(11);
+        let rotation = Rotation3::from_axis_angle(
+            &nalgebra::Unit::new_normalize(Vector3::new(0.3, 1.0, -0.2)),
+            1f64.to_radians(),
+        );
+        let truth = Similarity {
+            scale: 1.2,
+            rotation: *rotation.matrix(),
+            translation: Vector3::new(0.02, -0.01, 0.02),
+        };
+        // 70 % of the cloud on the reference surfaces, 30 % on a floor the reference
+        // lacks; the cloud is the reference frame mapped by the inverse of `truth`.
+        let mut world: Vec<Vector3<f64>> = random_surface(&mut rng, 14_000)
+            .iter()
+            .map(|(p, _)| *p)
+            .collect();
+        world.extend(
+            (0..6_000)
+                .map(|_| Vector3::new(rng.uniform() * 1.2 - 0.6, 0.9, 2.0 + rng.uniform() * 1.2)),
+        );
+        let inverse_rotation = truth.rotation.transpose();
+        let cloud: Vec<[f32; 3]> = world
+            .iter()
+            .map(|w| f32s(&(inverse_rotation * (w - truth.translation) / truth.scale)))
+            .collect();
+        let params = CompareParams {
+            align: AlignMode::Similarity,
+            align_params: AlignParams {
+                max_samples: 5_000,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let c = compare_to_reference(&cloud, &reference, &params, &no_progress).expect("compare");
+        let t = c.alignment.transform;
+        assert!(
+            (t.scale / truth.scale - 1.0).abs() < 2e-3,
+            "scale {}",
+            t.scale
+        );
+        let angle_error = (t.rotation.transpose() * truth.rotation).trace();
+        let angle_error = ((angle_error - 1.0) * 0.5)
+            .clamp(-1.0, 1.0)
+            .acos()
+            .to_degrees();
+        assert!(angle_error < 0.1, "rotation off by {angle_error}°");
+        assert!(
+            (t.translation - truth.translation).norm() < 5e-3,
+            "{:?}",
+            t.translation
+        );
+        // The overlapping 70 % lie on the reference, the floor does not.
+        assert!(c.stats.median < 3e-3, "median {}", c.stats.median);
+        assert!(c.distances[14_000..].iter().all(|&d| d > 0.05));
+    }
+
+    #[test]
+    fn umeyama_is_exact_on_exact_pairs() {
+        let mut rng = Rng(3);
+        let truth = Similarity {
+            scale: 0.7,
+            rotation: *Rotation3::from_euler_angles(0.4, -1.1, 2.0).matrix(),
+            translation: Vector3::new(1.0, -2.0, 0.5),
+        };
+        let from: Vec<Vector3<f64>> = (0..50)
+            .map(|_| Vector3::new(rng.normal(), rng.normal(), rng.normal()))
+            .collect();
+        let to: Vec<Vector3<f64>> = from
+            .iter()
+            .map(|p| truth.rotation * p * truth.scale + truth.translation)
+            .collect();
+        let t = Similarity::umeyama(&from, &to).expect("solvable");
+        assert!((t.scale - truth.scale).abs() < 1e-12);
+        assert!((t.rotation - truth.rotation).norm() < 1e-12);
+        assert!((t.translation - truth.translation).norm() < 1e-12);
+        let line: Vec<Vector3<f64>> = (0..5).map(|i| Vector3::new(i as f64, 0.0, 0.0)).collect();
+        assert!(Similarity::umeyama(&line, &line).is_none());
+    }
+
+    #[test]
+    fn report_carries_version_and_alignment() {
+        let reference = vec![[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]];
+        let cloud = vec![[0.0, 0.0, 1.5]];
+        let c = compare_to_reference(&cloud, &reference, &CompareParams::default(), &no_progress)
+            .expect("compare");
+        assert!((c.stats.median - 0.5).abs() < 1e-6);
+        let json = serde_json::to_value(c.report("a.ply", "b.ply", 3)).expect("json");
+        assert_eq!(json["version"], 1);
+        assert_eq!(json["alignment"]["mode"], "none");
+        assert_eq!(json["alignment"]["scale"], 1.0);
+        assert!(json["alignment"]["rms"].is_null());
+        assert_eq!(json["distances"]["count"], 1);
+        assert!(matches!(
+            compare_to_reference(&[], &reference, &CompareParams::default(), &no_progress),
+            Err(CompareError::EmptyCloud)
+        ));
+    }
+}
