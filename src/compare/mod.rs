@@ -14,12 +14,12 @@
 //! |---|---|
 //! | version | 1 |
 //! | mode | `"reference"` or `"truth"` |
-//! | cloud, reference / truth | input paths |
+//! | cloud, reference / truth_dir | input paths |
 //! | points, reference_points | point counts (reference mode) |
 //! | alignment | `{mode, scale, rotation (3×3 rows), translation, rotation_deg, iterations, pairs, rms}` |
 //! | thresholds | distances (scene units) for `distances.over` |
 //! | distances | `{count, mean, median, rms, p95, p99, max, over: [{threshold, fraction}]}` in scene units |
-//! | truth | the [`truth::TruthReport`] (truth mode) |
+//! | truth | the [`truth::TruthReport`] (truth mode): `points, evaluated, no_surface, invalid, scale_median, scale, outlier_relative, outlier_fraction, relative_error {count, mean, median, rms, p95, p99, max, over}, coverage {lit_pixels, covered_lit_pixels, fraction, radius_px}` |
 
 pub mod align;
 pub mod kdtree;
@@ -33,6 +33,7 @@ use serde::Serialize;
 pub use align::{AlignError, AlignMode, AlignParams, Alignment, Similarity};
 pub use kdtree::KdTree;
 pub use stats::ErrorStats;
+pub use truth::{evaluate_against_truth, GroundTruth, TruthError, TruthParams, TruthReport};
 
 /// Version of the JSON report.
 pub const REPORT_VERSION: u32 = 1;
@@ -255,6 +256,28 @@ impl ReferenceComparison {
             alignment: (&self.alignment).into(),
             thresholds: self.thresholds.clone(),
             distances: self.stats.clone(),
+        }
+    }
+}
+
+/// The truth-mode JSON report (see the module doc).
+#[derive(Clone, Debug, Serialize)]
+pub struct TruthModeReport {
+    pub version: u32,
+    pub mode: &'static str,
+    pub cloud: String,
+    pub truth_dir: String,
+    pub truth: TruthReport,
+}
+
+impl TruthModeReport {
+    pub fn new(cloud: &str, truth_dir: &str, truth: TruthReport) -> Self {
+        Self {
+            version: REPORT_VERSION,
+            mode: "truth",
+            cloud: cloud.to_string(),
+            truth_dir: truth_dir.to_string(),
+            truth,
         }
     }
 }
