@@ -58,7 +58,7 @@ impl Cloud {
 
 #[derive(Debug, thiserror::Error)]
 pub enum PlyError {
-    #[error("cannot read or write {path}: {source}")]
+    #[error("cannot read or write {path}")]
     Io {
         path: std::path::PathBuf,
         #[source]

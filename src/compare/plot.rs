@@ -140,7 +140,7 @@ pub fn tick_label(value: f64, step: f64) -> String {
     if value == 0.0 {
         return "0".into();
     }
-    if step >= 1e5 || step < 1e-4 {
+    if !(1e-4..1e5).contains(&step) {
         return format!("{value:.1e}").to_uppercase();
     }
     let decimals = (-step.log10().floor()).max(0.0) as usize;
@@ -308,11 +308,19 @@ pub fn histogram_image(
         true,
         INK,
     );
-    let mut title = style.title.clone();
+    draw_text(&mut img, &style.title, x0, 8, 2, false, INK);
     if over > 0 {
-        title.push_str(&format!("  ({over} BEYOND {})", tick_label(x_max, x_step)));
+        let note = format!("{over} BEYOND {}", tick_label(x_max, x_step));
+        draw_text(
+            &mut img,
+            &note,
+            x1 - text_width(&note, 2),
+            30,
+            2,
+            false,
+            INK,
+        );
     }
-    draw_text(&mut img, &title, x0, 16, 2, false, INK);
     img
 }
 
@@ -385,7 +393,7 @@ mod tests {
         assert_eq!(bar_pixels(110 + plot_width / 5..870), 0);
         assert!(img.pixels().any(|p| *p == Rgb([200, 0, 0])));
         // Title text is drawn.
-        assert!((16..30).any(|y| (110..200).any(|x| *img.get_pixel(x, y) == INK)));
+        assert!((8..22).any(|y| (110..200).any(|x| *img.get_pixel(x, y) == INK)));
     }
 
     #[test]
