@@ -1,11 +1,427 @@
-//! `crossline compare` (placeholder, filled by its owner).
+//! `crossline compare`: accuracy of a reconstructed cloud against a reference cloud or
+//! against the simulator's ground truth. The numbers come from `crossline::compare`;
+//! this file reads the inputs, draws progress, prints the summary and writes the files.
 
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-/// (placeholder)
-#[derive(clap::Args)]
-pub struct Args {}
+use anyhow::Context;
+use crossline::compare::plot::{self, HistogramStyle, Marker};
+use crossline::compare::{
+    self, AlignMode, AlignParams, CompareParams, ErrorStats, GroundTruth, TruthModeReport,
+    TruthParams,
+};
+use crossline::ply::{self, Cloud};
+use indicatif::{ProgressBar, ProgressStyle};
 
-pub fn run(_args: Args) -> anyhow::Result<ExitCode> {
-    anyhow::bail!("`crossline compare` is not implemented yet")
+/// Measure the accuracy of a reconstructed cloud.
+///
+/// Two modes:
+///
+///   --reference REF.ply  Distance from every point of CLOUD to the nearest point of
+///                        REF (e.g. a LiDAR scan), in the clouds' units, after an
+///                        optional alignment. As the paper checks its chapel scan
+///                        against a Riegl cloud: a histogram of point-to-point
+///                        distances, their statistics and a cloud coloured by distance.
+///   --truth SIMDIR       Against a folder written by `crossline simulate`: relative
+///                        depth error |s·Z − Z_true| / Z_true along each point's camera
+///                        ray after the best global scale s (the one quantity the
+///                        self-calibration cannot observe), and coverage of the lit
+///                        image area.
+///
+/// Alignment (--reference only): `none` uses the clouds as they are; `scale` fits one
+/// global scale about the camera centre (both clouds in the same camera frame: the
+/// usual case for a self-calibrated, scale-free reconstruction); `similarity` fits
+/// rotation, translation and scale by trimmed ICP (reference in another frame, roughly
+/// pre-aligned).
+///
+/// Files with --out PREFIX: PREFIX_hist.png (distance histogram), PREFIX_distances.ply
+/// (aligned cloud coloured by distance, with a `distance` property) and
+/// PREFIX_report.json (the --json report, version 1).
+///
+/// Example:
+///
+///   crossline compare cloud.ply --reference lidar.ply --align scale --out eval/run1
+///   crossline compare cloud.ply --truth sim --json
+#[derive(clap::Args)]
+#[command(verbatim_doc_comment)]
+pub struct Args {
+    /// The reconstructed cloud (PLY, ascii or binary).
+    cloud: PathBuf,
+    /// Reference cloud (PLY) to measure distances to.
+    #[arg(
+        long,
+        value_name = "REF.ply",
+        required_unless_present = "truth",
+        conflicts_with = "truth"
+    )]
+    reference: Option<PathBuf>,
+    /// Folder written by `crossline simulate` holding the ground truth.
+    #[arg(long, value_name = "SIMDIR")]
+    truth: Option<PathBuf>,
+    /// How to align the cloud to the reference before measuring.
+    #[arg(long, value_enum, default_value_t = AlignMode::None)]
+    align: AlignMode,
+    /// Distances (reference units) whose exceedance is reported, comma separated.
+    /// Default: 0.1 %, 0.5 % and 1 % of the reference's bounding-box diagonal.
+    #[arg(long, value_delimiter = ',', value_name = "D1,D2,..")]
+    thresholds: Vec<f64>,
+    /// Alignment keeps pairs closer than 3× this quantile of the pair distances; set it
+    /// below the share of the cloud that overlaps the reference.
+    #[arg(long, default_value_t = 0.5, value_name = "FRACTION")]
+    overlap: f64,
+    /// Bars in the histogram.
+    #[arg(long, default_value_t = 60)]
+    bins: usize,
+    /// Relative depth error above which a point is an outlier (--truth; 0.02 = 2 %).
+    #[arg(long, default_value_t = 0.02)]
+    outlier: f64,
+    /// A lit pixel is covered when a point projects within this many pixels (--truth).
+    #[arg(long, default_value_t = 2.0, value_name = "PX")]
+    coverage_radius: f64,
+    /// Write PREFIX_hist.png, PREFIX_distances.ply and PREFIX_report.json.
+    #[arg(long, value_name = "PREFIX")]
+    out: Option<PathBuf>,
+    /// Print the JSON report on stdout instead of the summary.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    if !(args.overlap > 0.0 && args.overlap <= 1.0) {
+        anyhow::bail!("--overlap must be in (0, 1], got {}", args.overlap);
+    }
+    if args
+        .thresholds
+        .iter()
+        .any(|t| !(t.is_finite() && *t >= 0.0))
+    {
+        anyhow::bail!(
+            "--thresholds must be non-negative distances, got {:?}",
+            args.thresholds
+        );
+    }
+    let cloud = read(&args.cloud)?;
+    match (&args.reference, &args.truth) {
+        (Some(reference), _) => run_reference(&args, &cloud, reference),
+        (None, Some(dir)) => run_truth(&args, &cloud, dir),
+        (None, None) => anyhow::bail!("give --reference REF.ply or --truth SIMDIR"),
+    }
+}
+
+fn read(path: &Path) -> anyhow::Result<Cloud> {
+    let cloud = ply::read_ply(path).with_context(|| format!("reading cloud {}", path.display()))?;
+    tracing::debug!("{}: {} points", path.display(), cloud.len());
+    Ok(cloud)
+}
+
+/// A progress bar on stderr; indicatif draws nothing when stderr is not a terminal.
+fn progress_bar() -> ProgressBar {
+    let bar = ProgressBar::new(0);
+    if let Ok(style) =
+        ProgressStyle::with_template("{spinner} {msg:<18} [{bar:30}] {pos}/{len} {elapsed}")
+    {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    bar
+}
+
+fn with_suffix(prefix: &Path, suffix: &str) -> PathBuf {
+    let mut s = prefix.as_os_str().to_owned();
+    s.push(suffix);
+    PathBuf::from(s)
+}
+
+fn run_reference(args: &Args, cloud: &Cloud, reference_path: &Path) -> anyhow::Result<ExitCode> {
+    let reference = read(reference_path)?;
+    let params = CompareParams {
+        align: args.align,
+        align_params: AlignParams {
+            keep_fraction: args.overlap,
+            ..AlignParams::default()
+        },
+        thresholds: (!args.thresholds.is_empty()).then(|| args.thresholds.clone()),
+    };
+    let bar = progress_bar();
+    let progress = |stage: &str, done: u64, total: u64| {
+        bar.set_message(stage.to_string());
+        bar.set_length(total);
+        bar.set_position(done);
+    };
+    let result =
+        compare::compare_to_reference(&cloud.points, &reference.points, &params, &progress)
+            .with_context(|| {
+                format!(
+                    "comparing {} with {}",
+                    args.cloud.display(),
+                    reference_path.display()
+                )
+            });
+    bar.finish_and_clear();
+    let result = result?;
+    let report = result.report(
+        &args.cloud.to_string_lossy(),
+        &reference_path.to_string_lossy(),
+        reference.len(),
+    );
+    let json = serde_json::to_string_pretty(&report).context("serialising the report")?;
+    if args.json {
+        println!("{json}");
+    } else {
+        print_reference_summary(args, cloud, &reference, &result, reference_path);
+    }
+    if let Some(prefix) = &args.out {
+        // The colour scale and the histogram's range: up to the 99th percentile, so one
+        // far outlier does not flatten everything else.
+        let x_max = if result.stats.p99 > 0.0 {
+            result.stats.p99
+        } else {
+            result.stats.max.max(f64::MIN_POSITIVE)
+        };
+        let s = &result.stats;
+        let style = HistogramStyle {
+            bins: args.bins.max(1),
+            title: format!(
+                "N={}  MEDIAN={}  RMS={}  ALIGN={}",
+                s.count,
+                short(s.median),
+                short(s.rms),
+                mode_name(args.align)
+            ),
+            ..HistogramStyle::default()
+        };
+        let markers = [
+            Marker {
+                label: format!("MEDIAN {}", short(s.median)),
+                value: s.median,
+                colour: [200, 30, 30],
+            },
+            Marker {
+                label: format!("P95 {}", short(s.p95)),
+                value: s.p95,
+                colour: [230, 140, 0],
+            },
+        ];
+        let img = plot::histogram_image(&result.distances, x_max, &markers, &style);
+        let png = with_suffix(prefix, "_hist.png");
+        img.save(&png)
+            .with_context(|| format!("writing histogram {}", png.display()))?;
+
+        let t = &result.alignment.transform;
+        let coloured = Cloud {
+            points: cloud
+                .points
+                .iter()
+                .map(|p| {
+                    let m = t.apply(p);
+                    [m.x as f32, m.y as f32, m.z as f32]
+                })
+                .collect(),
+            colors: Some(
+                result
+                    .distances
+                    .iter()
+                    .map(|&d| plot::colour_map(d as f64 / x_max))
+                    .collect(),
+            ),
+            frames: cloud.frames.clone(),
+            lasers: cloud.lasers.clone(),
+            distances: Some(result.distances.clone()),
+        };
+        let ply_path = with_suffix(prefix, "_distances.ply");
+        let comments = [
+            format!(
+                "crossline compare: distance to {} after --align {} (points aligned)",
+                reference_path.display(),
+                mode_name(args.align)
+            ),
+            format!("colour: viridis over distance 0 .. {x_max} (p99), grey = no distance"),
+        ];
+        ply::write_ply(&ply_path, &coloured, &comments)
+            .with_context(|| format!("writing coloured cloud {}", ply_path.display()))?;
+
+        let json_path = with_suffix(prefix, "_report.json");
+        std::fs::write(&json_path, format!("{json}\n"))
+            .with_context(|| format!("writing report {}", json_path.display()))?;
+        if !args.json {
+            println!(
+                "wrote      {}, {}, {}",
+                png.display(),
+                ply_path.display(),
+                json_path.display()
+            );
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn mode_name(mode: AlignMode) -> &'static str {
+    match mode {
+        AlignMode::None => "none",
+        AlignMode::Scale => "scale",
+        AlignMode::Similarity => "similarity",
+    }
+}
+
+/// A compact number for labels: 4 significant digits, exponent for extremes.
+fn short(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let mag = v.abs().log10().floor();
+    if !(-4.0..6.0).contains(&mag) {
+        return format!("{v:.3e}").to_uppercase();
+    }
+    let decimals = (3.0 - mag).max(0.0) as usize;
+    format!("{v:.decimals$}")
+}
+
+fn print_stats(stats: &ErrorStats, unit: &str) {
+    for (name, v) in [
+        ("mean", stats.mean),
+        ("median", stats.median),
+        ("rms", stats.rms),
+        ("p95", stats.p95),
+        ("p99", stats.p99),
+        ("max", stats.max),
+    ] {
+        println!("  {name:<10}{:>14}{unit}", short(v));
+    }
+    for e in &stats.over {
+        println!(
+            "  > {:<8}{:>13.3} % of points",
+            short(e.threshold),
+            100.0 * e.fraction
+        );
+    }
+}
+
+fn print_reference_summary(
+    args: &Args,
+    cloud: &Cloud,
+    reference: &Cloud,
+    result: &compare::ReferenceComparison,
+    reference_path: &Path,
+) {
+    let a = &result.alignment;
+    let t = &a.transform;
+    println!(
+        "cloud      {} ({} points)",
+        args.cloud.display(),
+        cloud.len()
+    );
+    println!(
+        "reference  {} ({} points, bounding-box diagonal {})",
+        reference_path.display(),
+        reference.len(),
+        short(result.reference_diagonal)
+    );
+    match a.mode {
+        AlignMode::None => println!("alignment  none"),
+        mode => {
+            println!(
+                "alignment  {}: scale {:.6}, {} iterations, {} pairs kept, pair rms {}",
+                mode_name(mode),
+                t.scale,
+                a.iterations,
+                a.pairs,
+                short(a.rms)
+            );
+            if mode == AlignMode::Similarity {
+                let r = &t.rotation;
+                println!(
+                    "           rotation {:.4}° ; translation ({}, {}, {})",
+                    t.angle().to_degrees(),
+                    short(t.translation.x),
+                    short(t.translation.y),
+                    short(t.translation.z)
+                );
+                for i in 0..3 {
+                    println!(
+                        "           [{:>10.6} {:>10.6} {:>10.6}]",
+                        r[(i, 0)],
+                        r[(i, 1)],
+                        r[(i, 2)]
+                    );
+                }
+            }
+        }
+    }
+    println!(
+        "distances  to the nearest reference point, reference units ({} of {} points)",
+        result.stats.count,
+        cloud.len()
+    );
+    print_stats(&result.stats, "");
+}
+
+fn run_truth(args: &Args, cloud: &Cloud, dir: &Path) -> anyhow::Result<ExitCode> {
+    if args.align != AlignMode::None {
+        tracing::warn!("--align is ignored with --truth: the best scale is always fitted");
+    }
+    let truth = load_truth(dir)?;
+    let params = TruthParams {
+        outlier_relative: args.outlier,
+        coverage_radius_px: args.coverage_radius,
+    };
+    let report = compare::evaluate_against_truth(&cloud.points, truth.as_ref(), &params)
+        .with_context(|| {
+            format!(
+                "evaluating {} against {}",
+                args.cloud.display(),
+                dir.display()
+            )
+        })?;
+    let full = TruthModeReport::new(
+        &args.cloud.to_string_lossy(),
+        &dir.to_string_lossy(),
+        report,
+    );
+    let json = serde_json::to_string_pretty(&full).context("serialising the report")?;
+    if args.json {
+        println!("{json}");
+    } else {
+        let r = &full.truth;
+        println!("cloud      {} ({} points)", args.cloud.display(), r.points);
+        println!("truth      {}", dir.display());
+        println!(
+            "points     {} evaluated, {} with no surface on their ray, {} invalid",
+            r.evaluated, r.no_surface, r.invalid
+        );
+        println!(
+            "scale      {:.6} (median start {:.6})",
+            r.scale, r.scale_median
+        );
+        println!(
+            "outliers   {:.3} % over {} % relative depth error",
+            100.0 * r.outlier_fraction,
+            100.0 * r.outlier_relative
+        );
+        println!("relative depth error |s·Z − Z_true| / Z_true");
+        print_stats(&r.relative_error, "");
+        println!(
+            "coverage   {:.2} % of {} lit pixels have a point within {} px",
+            100.0 * r.coverage.fraction,
+            r.coverage.lit_pixels,
+            r.coverage.radius_px
+        );
+    }
+    if let Some(prefix) = &args.out {
+        let json_path = with_suffix(prefix, "_report.json");
+        std::fs::write(&json_path, format!("{json}\n"))
+            .with_context(|| format!("writing report {}", json_path.display()))?;
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The simulator's ground truth for `dir`.
+///
+/// TO BE WIRED AT MERGE: `crossline::simulate::load_sim_dir(dir)` and `impl GroundTruth
+/// for SimDir` (camera, `scene.ray_depth`, `lit`). Kept tiny on purpose.
+fn load_truth(dir: &Path) -> anyhow::Result<Box<dyn GroundTruth>> {
+    anyhow::bail!(
+        "--truth is not wired to the simulator yet (cannot load {})",
+        dir.display()
+    )
 }
