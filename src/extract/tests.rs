@@ -387,3 +387,78 @@ fn params_from_toml_reject_unknown_keys() {
         })
     ));
 }
+
+/// The real laser-on / laser-off pair of `fixtures/real/` (960x1280, a red line laser on
+/// a white bust). Regions were read off the images with an image viewer:
+/// - the stripe on the bust runs from (590, 50) at the top of the helmet crest down to
+///   (595, 1120) where the pedestal meets the turntable, always within x 505..600;
+/// - the laser also hits the white turntable rim at x ≈ 778, y 1215..1280 (real laser);
+/// - traps: the Rubik's cube (x 60..225, y 805..950, its top edge is red), the blue
+///   scanner body (x 690..910, y 700..1005), and the red turntable edges (x 70..135,
+///   y 1180..1240 and x 785..890, y 1220..1280).
+#[test]
+fn real_pair_finds_the_stripe_on_the_bust_only() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/real");
+    let load = |name: &str| image::open(dir.join(name)).expect(name).to_rgb8();
+    let (frame, off) = (load("laser.png"), load("laser_background.png"));
+    let camera = Camera::with_fov(frame.width(), frame.height(), 1.0);
+    // The stripe is saturated with a flat top ~8 px wide and ~12 px at half maximum.
+    let params = ExtractParams {
+        line_width_px: 10.0,
+        lasers: LaserColour::preset("red").expect("preset"),
+        ..ExtractParams::default()
+    };
+    let mut ex = Extractor::new(&params, &camera).expect("extractor");
+    let curves = ex.extract(&frame, &Background::from_image(off));
+    let in_box = |p: &[f32; 2], (x0, x1, y0, y1): (f32, f32, f32, f32)| {
+        (x0..=x1).contains(&p[0]) && (y0..=y1).contains(&p[1])
+    };
+    let stripe = (505.0, 600.0, 45.0, 1125.0);
+    let rim = (770.0, 785.0, 1210.0, 1280.0);
+    let traps = [
+        (60.0, 225.0, 805.0, 950.0),
+        (690.0, 910.0, 700.0, 1005.0),
+        (70.0, 135.0, 1180.0, 1240.0),
+        (785.0, 890.0, 1220.0, 1280.0),
+    ];
+    let points: Vec<[f32; 2]> = curves
+        .iter()
+        .flat_map(|c| c.points_px.iter().copied())
+        .collect();
+    for p in &points {
+        assert!(
+            in_box(p, stripe) || in_box(p, rim),
+            "point {p:?} off the stripe"
+        );
+        assert!(
+            !traps.iter().any(|t| in_box(p, *t)),
+            "point {p:?} in a trap"
+        );
+    }
+    // Most of the bust's height is covered: rows 50..1120 in 10-row bins.
+    let mut covered = [false; 107];
+    for p in points.iter().filter(|p| in_box(p, stripe)) {
+        let bin = ((p[1] - 50.0) / 10.0) as usize;
+        if let Some(c) = covered.get_mut(bin) {
+            *c = true;
+        }
+    }
+    let fraction = covered.iter().filter(|c| **c).count() as f64 / covered.len() as f64;
+    let length: f64 = curves.iter().map(|c| c.length_px()).sum();
+    assert!(
+        fraction >= 0.9,
+        "only {fraction:.2} of the bust's height covered"
+    );
+    assert!(length >= 1000.0, "total length {length}");
+    // The traps are real: without the background the red cube edge becomes a curve.
+    let lost = ex.extract(&frame, &Background::black(frame.width(), frame.height()));
+    let trapped = lost
+        .iter()
+        .flat_map(|c| c.points_px.iter())
+        .filter(|p| in_box(p, traps[0]))
+        .count();
+    assert!(
+        trapped > 20,
+        "cube trap not triggered without background ({trapped} points)"
+    );
+}
