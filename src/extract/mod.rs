@@ -428,7 +428,9 @@ impl Extractor {
         Ok(curves)
     }
 
-    /// Marks, per laser, the tiles holding a pixel of that laser's colour.
+    /// Marks, per laser, the tiles holding a pixel of that laser's colour. A cheap
+    /// byte-wise test (any channel of the difference reaching `min_value`) runs over
+    /// every tile-wide chunk of every row; the look-up table only on chunks that pass.
     fn activate_rgb(&mut self, frame: &RgbImage, background: &RgbImage) {
         for a in &mut self.active {
             a.fill(false);
@@ -439,22 +441,32 @@ impl Extractor {
             self.detector.tiles_x,
         );
         let n_lasers = self.active.len() as u8;
+        let min_value = self.params.min_value;
         let (fr, bg) = (frame.as_raw(), background.as_raw());
-        for (y, (frow, brow)) in fr
-            .chunks_exact(3 * w)
-            .zip(bg.chunks_exact(3 * w))
-            .enumerate()
-        {
+        for (y, (frow, brow)) in fr.chunks(3 * w).zip(bg.chunks(3 * w)).enumerate() {
             let trow = (y / tile) * tiles_x;
-            for (x, (f, b)) in frow.chunks_exact(3).zip(brow.chunks_exact(3)).enumerate() {
-                let (dr, dg, db) = (
-                    f[0].saturating_sub(b[0]),
-                    f[1].saturating_sub(b[1]),
-                    f[2].saturating_sub(b[2]),
-                );
-                if let Some(c) = self.lut.classify(dr, dg, db) {
-                    if c < n_lasers {
-                        self.active[c as usize][trow + x / tile] = true;
+            for (tx, (fc, bc)) in frow.chunks(3 * tile).zip(brow.chunks(3 * tile)).enumerate() {
+                let t = trow + tx;
+                if self.active.iter().all(|a| a[t]) {
+                    continue;
+                }
+                let strong = fc
+                    .iter()
+                    .zip(bc)
+                    .fold(0u8, |m, (f, b)| m.max(f.saturating_sub(*b)));
+                if strong < min_value {
+                    continue;
+                }
+                for (f, b) in fc.chunks_exact(3).zip(bc.chunks_exact(3)) {
+                    let (dr, dg, db) = (
+                        f[0].saturating_sub(b[0]),
+                        f[1].saturating_sub(b[1]),
+                        f[2].saturating_sub(b[2]),
+                    );
+                    if let Some(c) = self.lut.classify(dr, dg, db) {
+                        if c < n_lasers {
+                            self.active[c as usize][t] = true;
+                        }
                     }
                 }
             }
