@@ -27,8 +27,7 @@ impl Linker {
         &mut self,
         points: &[LinePoint],
         index: &[u32],
-        width: usize,
-        height: usize,
+        (width, height): (usize, usize),
         (low, high): (f32, f32),
         max_angle_rad: f32,
         mut emit: impl FnMut(&[u32]),
@@ -257,7 +256,7 @@ mod tests {
             }
         }
         let mut chains: Vec<Vec<u32>> = Vec::new();
-        Linker::default().link(&points, &index, w, h, (1.0, 2.0), 0.5, |c| {
+        Linker::default().link(&points, &index, (w, h), (1.0, 2.0), 0.5, |c| {
             chains.push(c.to_vec())
         });
         // The horizontal line first (strongest), whole and in order.

@@ -174,10 +174,10 @@ impl ExtractParams {
                 ),
             );
         }
-        if !(self.min_curve_length_px >= 0.0) {
+        if self.min_curve_length_px.is_nan() || self.min_curve_length_px < 0.0 {
             return bad("min_curve_length_px", "expected >= 0".into());
         }
-        if !(self.dp_tolerance_px >= 0.0) {
+        if self.dp_tolerance_px.is_nan() || self.dp_tolerance_px < 0.0 {
             return bad("dp_tolerance_px", "expected >= 0".into());
         }
         if !(self.max_link_angle_deg > 0.0 && self.max_link_angle_deg < 90.0) {
@@ -481,8 +481,7 @@ impl Extractor {
         self.linker.link(
             &det.points,
             &det.index,
-            det.width,
-            det.height,
+            (det.width, det.height),
             (self.low, self.high),
             params.max_link_angle_deg.to_radians() as f32,
             |chain| {
