@@ -148,6 +148,63 @@ fn straight_stripes_are_unbiased_at_peak_to_noise_40() {
     );
 }
 
+/// Overexposed stripes clip to a flat top (as real ones do): no longer Gaussian, but
+/// symmetric, so the centre must stay close, given the width of the clipped profile.
+#[test]
+fn clipped_stripes_stay_close() {
+    let (w, h) = (48u32, 48u32);
+    // Peak 700 clipped at 255 − 20: a plateau where the Gaussian exceeds 235, i.e.
+    // |d| < 1.6 s; half maximum of the clipped profile at |d| = 1.98 s.
+    let (s, peak, bg) = (1.2, 700.0, 20.0);
+    let params = ExtractParams {
+        line_width_px: 2.0 * 1.98 * s,
+        ..params_for(s, "red")
+    };
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&params, &camera).expect("extractor");
+    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let mut rng = Rng(0xc11f_0001);
+    let mut all = Vec::new();
+    let mut worst_bias: f64 = 0.0;
+    for ai in 0..8 {
+        let theta = std::f64::consts::PI * (ai as f64 + 0.21) / 8.0;
+        let (nx, ny) = (-theta.sin(), theta.cos());
+        for oi in 0..4 {
+            let off = oi as f64 / 4.0;
+            let (cx, cy) = (23.1 + off * nx, 23.8 + off * ny);
+            let dist = move |x: f64, y: f64| (x - cx) * nx + (y - cy) * ny;
+            let stripe = Stripe {
+                rgb: [1.0, 0.1, 0.15],
+                peak,
+                s,
+                distance: &dist,
+            };
+            let frame = render(w, h, &flat(bg), &[stripe], 5.0, &mut rng);
+            let curves = ex.extract(&frame, &background);
+            let e = errors(&curves, w, h, 6.0, &dist);
+            assert!(
+                e.len() >= 30,
+                "angle {theta:.2} offset {off}: only {} points",
+                e.len()
+            );
+            let (m, _) = mean_std(&e);
+            worst_bias = worst_bias.max(m.abs());
+            all.extend(e);
+        }
+    }
+    let (m, sd) = mean_std(&all);
+    eprintln!(
+        "clipped: n={} bias={m:.4} std={sd:.4} worst config bias={worst_bias:.4}",
+        all.len()
+    );
+    assert!(m.abs() <= 0.02, "bias {m}");
+    assert!(sd <= 0.05, "std {sd}");
+    assert!(
+        worst_bias <= 0.05,
+        "worst per-configuration bias {worst_bias}"
+    );
+}
+
 #[test]
 fn circular_arc_follows_the_circle() {
     let (w, h) = (96u32, 96u32);

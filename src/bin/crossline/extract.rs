@@ -155,6 +155,38 @@ mod tests {
     use super::*;
 
     #[test]
+    fn real_pair_writes_curves_and_overlay() {
+        let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/real");
+        let dir = tempfile::tempdir().expect("tempdir");
+        let args = Args {
+            input: fixtures.join("laser.png"),
+            background: Some(fixtures.join("laser_background.png")),
+            camera: None,
+            config: None,
+            out: dir.path().join("curves.json"),
+            overlay: Some(dir.path().join("overlay.png")),
+            lasers: Some("red".into()),
+            line_width_px: Some(10.0),
+        };
+        run(args).expect("extract");
+        let file = CurvesFile::load(&dir.path().join("curves.json")).expect("curves file");
+        assert_eq!((file.width, file.height), (960, 1280));
+        assert_eq!(file.lasers, vec!["red".to_string()]);
+        let length: f64 = file.curves.iter().map(|c| c.length_px()).sum();
+        assert!(length > 1000.0, "{length}");
+        let overlay = image::open(dir.path().join("overlay.png"))
+            .expect("overlay")
+            .to_rgb8();
+        assert_eq!(overlay.dimensions(), (960, 1280));
+        // A curve point is drawn in red on the darkened frame.
+        let p = file.curves[0].points_px[0];
+        let px = overlay
+            .get_pixel(p[0].round() as u32, p[1].round() as u32)
+            .0;
+        assert_eq!(px, LaserColour::red().display_rgb);
+    }
+
+    #[test]
     fn config_extract_table() {
         let p = parse_params("[solve]\nx = 1\n[extract]\nline_width_px = 7.0\n").expect("parse");
         assert_eq!(p.line_width_px, 7.0);
