@@ -1,1 +1,522 @@
-//! (placeholder, filled by its owner)
+//! Laser curve extraction: from a camera frame and a background to sub-pixel, ordered,
+//! per-laser curves in distorted pixels and in undistorted normalised coordinates.
+//!
+//! Owns the background model ([`Background`]), the colour classes ([`colour`]), the
+//! Steger ridge detector (`detect`), the linking of ridge points (`link`) and the curves
+//! file. It does not touch camera models (it calls [`Camera::normalized_from_pixel`]) or
+//! anything downstream of curves.
+//!
+//! # Steps of [`Extractor::extract`]
+//! 1. *Colour* (input-format specific, RGB here): the positive part of
+//!    `frame − background` is classified per pixel through an RGB look-up table built
+//!    from HSV limits ([`colour::ColourLut`]); tiles holding a pixel of laser `k`'s
+//!    colour become active for laser `k`. Laser `k`'s response is the difference's HSV
+//!    value on pixels that are weak, white (desaturated) or of `k`'s colour, and zero on
+//!    the other laser's colour, so the two stripes of the cross stay apart.
+//! 2. *Ridges* (per laser, active tiles only): separable Gaussian derivatives, the
+//!    Hessian, its eigenvector across the line, the second-order Taylor offset
+//!    `t = −(n·∇g)/λ` that must stay in the pixel (`|t·n| ≤ 0.5` in both axes), for
+//!    bright lines only (`λ < 0` and the strongest curvature).
+//! 3. *Linking* with hysteresis (`low_contrast` to continue, `high_contrast` to start),
+//!    fragments shorter than `min_curve_length_px` dropped, points undistorted one by
+//!    one, Douglas–Peucker simplification in undistorted pixel units.
+//!
+//! # Thresholds
+//! `high_contrast` and `low_contrast` are absolute, in grey levels (0–255) of the
+//! background-subtracted stripe peak: a Gaussian stripe whose full width at half
+//! maximum is `line_width_px` and whose peak is `c` grey levels above the background
+//! gives a Hessian eigenvalue `c · s / (s² + σ²)^{3/2}` (`s` = FWHM / 2.355), and the
+//! thresholds are converted with that factor. [`Curve::strength`] is in the same unit.
+//! The smoothing scale is `σ = max(w/√3, 1)` for the half-width `w = line_width_px / 2`
+//! (Steger's condition for a bar profile), unless `sigma_px` is set.
+//!
+//! # Curves file (JSON, version 1)
+//! | key | type | meaning |
+//! |---|---|---|
+//! | `format` | string | always `"crossline-curves"` |
+//! | `version` | integer | `1` |
+//! | `width`, `height` | integer | image size in pixels |
+//! | `lasers` | array of strings | laser names; a curve's `laser` indexes it |
+//! | `curves` | array | one object per curve, fields below |
+//! | `curves[].laser` | integer | 0 or 1 |
+//! | `curves[].points_px` | array of `[x, y]` | sub-pixel points in distorted pixels (pixel centres at integers), in order along the curve |
+//! | `curves[].points` | array of `[x, y]` | the same points, undistorted normalised coordinates |
+//! | `curves[].strength` | array of numbers | ridge strength of each point, grey levels |
+//! | `curves[].polyline` | array of `[x, y]` | Douglas–Peucker simplification of `points` |
+//!
+//! `points_px`, `points` and `strength` are parallel; points whose undistortion fails are
+//! dropped from all three.
+
+pub mod background;
+pub mod colour;
+mod detect;
+mod link;
+
+use std::path::Path;
+
+use image::RgbImage;
+use serde::{Deserialize, Serialize};
+
+use crate::camera::Camera;
+pub use background::{Background, RunningParams};
+pub use colour::{ColourLut, ColourParams, LaserColour};
+use detect::Detector;
+use link::Linker;
+
+/// Version of the curves file written by [`CurvesFile::to_json`].
+pub const CURVES_FILE_VERSION: u32 = 1;
+const CURVES_FILE_FORMAT: &str = "crossline-curves";
+
+#[derive(Debug, thiserror::Error)]
+pub enum ExtractError {
+    #[error("invalid extraction parameter {key}: {message}")]
+    Params { key: &'static str, message: String },
+    #[error("background: {message}")]
+    Background { message: String },
+    #[error("frame is {got_width}x{got_height}, expected {width}x{height} ({what})")]
+    Size {
+        what: &'static str,
+        width: u32,
+        height: u32,
+        got_width: u32,
+        got_height: u32,
+    },
+    #[error("cannot read {path}: {source}")]
+    Io {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("curves file {path}: {message}")]
+    CurvesFile {
+        path: std::path::PathBuf,
+        message: String,
+    },
+}
+
+/// Extraction parameters; every key of the `[extract]` table of `crossline.toml`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ExtractParams {
+    /// Expected stripe width in pixels (full width at half maximum).
+    pub line_width_px: f64,
+    /// Smoothing scale; derived from `line_width_px` when absent.
+    pub sigma_px: Option<f64>,
+    /// A curve starts at points of at least this contrast (grey levels, see module doc).
+    pub high_contrast: f32,
+    /// A curve continues through points of at least this contrast.
+    pub low_contrast: f32,
+    /// Curves shorter than this (pixels, along the curve) are dropped.
+    pub min_curve_length_px: f64,
+    /// Douglas–Peucker tolerance in undistorted pixels (normalised × focal length).
+    pub dp_tolerance_px: f64,
+    /// Largest change of direction between linked neighbours, degrees.
+    pub max_link_angle_deg: f64,
+    /// Minimum HSV value (0–255) of the difference for a pixel to get a colour class.
+    pub min_value: u8,
+    /// Minimum HSV saturation (0–1) for a hue to count; below, a bright pixel is white.
+    pub min_saturation: f32,
+    /// One or two lasers; a curve's `laser` indexes this list.
+    pub lasers: Vec<LaserColour>,
+}
+
+impl Default for ExtractParams {
+    fn default() -> Self {
+        let colour = ColourParams::default();
+        Self {
+            line_width_px: 4.0,
+            sigma_px: None,
+            high_contrast: 40.0,
+            low_contrast: 15.0,
+            min_curve_length_px: 15.0,
+            dp_tolerance_px: 0.3,
+            max_link_angle_deg: 30.0,
+            min_value: colour.min_value,
+            min_saturation: colour.min_saturation,
+            lasers: vec![LaserColour::red(), LaserColour::green()],
+        }
+    }
+}
+
+impl ExtractParams {
+    /// The smoothing scale in pixels.
+    pub fn sigma(&self) -> f64 {
+        self.sigma_px
+            .unwrap_or_else(|| (0.5 * self.line_width_px / 3f64.sqrt()).max(1.0))
+    }
+
+    /// Hessian eigenvalue of a stripe of the expected width and 1 grey level of peak.
+    fn eigenvalue_per_grey_level(&self) -> f64 {
+        let s = self.line_width_px / (8.0 * 2f64.ln()).sqrt();
+        let sigma = self.sigma();
+        s / (s * s + sigma * sigma).powf(1.5)
+    }
+
+    fn validate(&self) -> Result<(), ExtractError> {
+        let bad = |key, message: String| Err(ExtractError::Params { key, message });
+        if !(self.line_width_px.is_finite() && self.line_width_px > 0.0) {
+            return bad(
+                "line_width_px",
+                format!("expected > 0, got {}", self.line_width_px),
+            );
+        }
+        if let Some(s) = self.sigma_px {
+            if !(s.is_finite() && (0.5..=50.0).contains(&s)) {
+                return bad("sigma_px", format!("expected 0.5..=50, got {s}"));
+            }
+        }
+        if !(self.low_contrast >= 0.0 && self.high_contrast >= self.low_contrast) {
+            return bad(
+                "low_contrast",
+                format!(
+                    "expected 0 <= low_contrast <= high_contrast, got {} and {}",
+                    self.low_contrast, self.high_contrast
+                ),
+            );
+        }
+        if self.min_curve_length_px.is_nan() || self.min_curve_length_px < 0.0 {
+            return bad("min_curve_length_px", "expected >= 0".into());
+        }
+        if self.dp_tolerance_px.is_nan() || self.dp_tolerance_px < 0.0 {
+            return bad("dp_tolerance_px", "expected >= 0".into());
+        }
+        if !(self.max_link_angle_deg > 0.0 && self.max_link_angle_deg < 90.0) {
+            return bad("max_link_angle_deg", "expected in (0, 90)".into());
+        }
+        if !(0.0..=1.0).contains(&self.min_saturation) {
+            return bad("min_saturation", "expected in [0, 1]".into());
+        }
+        if self.lasers.is_empty() || self.lasers.len() > 2 {
+            return bad(
+                "lasers",
+                format!("expected one or two lasers, got {}", self.lasers.len()),
+            );
+        }
+        for l in &self.lasers {
+            if l.hue_deg.iter().any(|h| !(0.0..=360.0).contains(h)) {
+                return bad(
+                    "lasers.hue_deg",
+                    format!("laser {:?}: hues must be in [0, 360]", l.name),
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
+/// One laser curve of one frame.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Curve {
+    /// Index into [`ExtractParams::lasers`].
+    pub laser: u8,
+    /// Dense sub-pixel points in distorted pixels, in order along the curve.
+    pub points_px: Vec<[f32; 2]>,
+    /// The same points in undistorted normalised coordinates.
+    pub points: Vec<[f64; 2]>,
+    /// Ridge strength of each point, grey levels of stripe contrast.
+    pub strength: Vec<f32>,
+    /// Douglas–Peucker simplification of `points`, normalised coordinates.
+    pub polyline: Vec<[f64; 2]>,
+}
+
+impl Curve {
+    /// Length along `points_px`, pixels.
+    pub fn length_px(&self) -> f64 {
+        self.points_px
+            .windows(2)
+            .map(|w| {
+                let (dx, dy) = ((w[1][0] - w[0][0]) as f64, (w[1][1] - w[0][1]) as f64);
+                dx.hypot(dy)
+            })
+            .sum()
+    }
+}
+
+/// The curves of one frame as written to disk (see the module doc for the format).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CurvesFile {
+    pub format: String,
+    pub version: u32,
+    pub width: u32,
+    pub height: u32,
+    pub lasers: Vec<String>,
+    pub curves: Vec<Curve>,
+}
+
+impl CurvesFile {
+    pub fn new(width: u32, height: u32, lasers: &[LaserColour], curves: Vec<Curve>) -> Self {
+        Self {
+            format: CURVES_FILE_FORMAT.into(),
+            version: CURVES_FILE_VERSION,
+            width,
+            height,
+            lasers: lasers.iter().map(|l| l.name.clone()).collect(),
+            curves,
+        }
+    }
+
+    pub fn to_json(&self) -> String {
+        // Serialising plain numbers and strings cannot fail.
+        serde_json::to_string(self).unwrap_or_default()
+    }
+
+    /// Parses a curves file; `path` only names the source in errors.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ExtractError> {
+        let err = |message: String| ExtractError::CurvesFile {
+            path: path.to_path_buf(),
+            message,
+        };
+        let file: Self = serde_json::from_str(text).map_err(|e| err(e.to_string()))?;
+        if file.format != CURVES_FILE_FORMAT {
+            return Err(err(format!(
+                "format is {:?}, expected {CURVES_FILE_FORMAT:?}",
+                file.format
+            )));
+        }
+        if file.version != CURVES_FILE_VERSION {
+            return Err(err(format!(
+                "version {} is not supported (expected {CURVES_FILE_VERSION})",
+                file.version
+            )));
+        }
+        Ok(file)
+    }
+
+    pub fn load(path: &Path) -> Result<Self, ExtractError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ExtractError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::parse(&text, path)
+    }
+}
+
+/// Counts of the last frame, for logs and benchmarks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ExtractStats {
+    /// Active tiles summed over the lasers.
+    pub active_tiles: usize,
+    /// Ridge points found, summed over the lasers.
+    pub ridge_points: usize,
+}
+
+/// The per-frame extractor; owns and reuses all its scratch buffers.
+pub struct Extractor {
+    params: ExtractParams,
+    camera: Camera,
+    lut: ColourLut,
+    detector: Detector,
+    linker: Linker,
+    active: Vec<Vec<bool>>,
+    low: f32,
+    high: f32,
+    per_grey_level: f32,
+    stats: ExtractStats,
+}
+
+impl Extractor {
+    /// An extractor for frames of the camera's size.
+    pub fn new(params: &ExtractParams, camera: &Camera) -> Result<Self, ExtractError> {
+        params.validate()?;
+        if camera.width == 0 || camera.height == 0 {
+            return Err(ExtractError::Params {
+                key: "camera",
+                message: "image size is zero".into(),
+            });
+        }
+        let lut = ColourLut::new(
+            &params.lasers,
+            &ColourParams {
+                min_value: params.min_value,
+                min_saturation: params.min_saturation,
+            },
+        );
+        let detector = Detector::new(
+            camera.width as usize,
+            camera.height as usize,
+            params.sigma(),
+        );
+        let per_grey_level = params.eigenvalue_per_grey_level() as f32;
+        let tiles = detector.tiles_x * detector.tiles_y;
+        Ok(Self {
+            low: params.low_contrast * per_grey_level,
+            high: params.high_contrast * per_grey_level,
+            per_grey_level,
+            active: vec![vec![false; tiles]; params.lasers.len()],
+            params: params.clone(),
+            camera: camera.clone(),
+            lut,
+            detector,
+            linker: Linker::default(),
+            stats: ExtractStats::default(),
+        })
+    }
+
+    pub fn params(&self) -> &ExtractParams {
+        &self.params
+    }
+
+    pub fn stats(&self) -> ExtractStats {
+        self.stats
+    }
+
+    /// The curves of `frame` against `background`. A frame with no laser gives no
+    /// curves. Frames or backgrounds not of the camera's size are a caller's bug: they
+    /// are logged and give no curves (see [`Self::try_extract`]).
+    pub fn extract(&mut self, frame: &RgbImage, background: &Background) -> Vec<Curve> {
+        match self.try_extract(frame, background) {
+            Ok(curves) => curves,
+            Err(e) => {
+                tracing::error!("extract: {e}");
+                Vec::new()
+            }
+        }
+    }
+
+    /// As [`Self::extract`], with a size mismatch returned as an error.
+    pub fn try_extract(
+        &mut self,
+        frame: &RgbImage,
+        background: &Background,
+    ) -> Result<Vec<Curve>, ExtractError> {
+        let (w, h) = (self.camera.width, self.camera.height);
+        for (what, img) in [("frame", frame), ("background", background.image())] {
+            if img.dimensions() != (w, h) {
+                return Err(ExtractError::Size {
+                    what,
+                    width: w,
+                    height: h,
+                    got_width: img.width(),
+                    got_height: img.height(),
+                });
+            }
+        }
+        self.activate_rgb(frame, background.image());
+        let mut curves = Vec::new();
+        self.stats = ExtractStats::default();
+        for laser in 0..self.params.lasers.len() {
+            let lut = &self.lut;
+            let (fr, bg) = (frame.as_raw(), background.image().as_raw());
+            let width = self.detector.width;
+            self.detector
+                .prepare(&self.active[laser], |y, x0, row, masked| {
+                    let start = 3 * (y * width + x0);
+                    let f = &fr[start..start + 3 * row.len()];
+                    let b = &bg[start..start + 3 * row.len()];
+                    for (((o, m), f), b) in row
+                        .iter_mut()
+                        .zip(masked.iter_mut())
+                        .zip(f.chunks_exact(3))
+                        .zip(b.chunks_exact(3))
+                    {
+                        let (dr, dg, db) = (
+                            f[0].saturating_sub(b[0]),
+                            f[1].saturating_sub(b[1]),
+                            f[2].saturating_sub(b[2]),
+                        );
+                        let (r, other_laser) = lut.response(laser as u8, dr, dg, db);
+                        *m = u8::from(other_laser);
+                        *o = r as f32;
+                    }
+                });
+            self.detector.detect(&self.active[laser], self.low);
+            self.stats.active_tiles += self.active[laser].iter().filter(|a| **a).count();
+            self.stats.ridge_points += self.detector.points.len();
+            self.link_into(laser as u8, &mut curves);
+        }
+        Ok(curves)
+    }
+
+    /// Marks, per laser, the tiles holding a pixel of that laser's colour. A cheap
+    /// byte-wise test (any channel of the difference reaching `min_value`) runs over
+    /// every tile-wide chunk of every row; the look-up table only on chunks that pass.
+    fn activate_rgb(&mut self, frame: &RgbImage, background: &RgbImage) {
+        for a in &mut self.active {
+            a.fill(false);
+        }
+        let (w, tile, tiles_x) = (
+            self.detector.width,
+            self.detector.tile,
+            self.detector.tiles_x,
+        );
+        let n_lasers = self.active.len() as u8;
+        let min_value = self.params.min_value;
+        let (fr, bg) = (frame.as_raw(), background.as_raw());
+        for (y, (frow, brow)) in fr.chunks(3 * w).zip(bg.chunks(3 * w)).enumerate() {
+            let trow = (y / tile) * tiles_x;
+            for (tx, (fc, bc)) in frow.chunks(3 * tile).zip(brow.chunks(3 * tile)).enumerate() {
+                let t = trow + tx;
+                if self.active.iter().all(|a| a[t]) {
+                    continue;
+                }
+                let strong = fc
+                    .iter()
+                    .zip(bc)
+                    .fold(0u8, |m, (f, b)| m.max(f.saturating_sub(*b)));
+                if strong < min_value {
+                    continue;
+                }
+                for (f, b) in fc.chunks_exact(3).zip(bc.chunks_exact(3)) {
+                    let (dr, dg, db) = (
+                        f[0].saturating_sub(b[0]),
+                        f[1].saturating_sub(b[1]),
+                        f[2].saturating_sub(b[2]),
+                    );
+                    if let Some(c) = self.lut.classify(dr, dg, db) {
+                        if c < n_lasers {
+                            self.active[c as usize][t] = true;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    fn link_into(&mut self, laser: u8, curves: &mut Vec<Curve>) {
+        let det = &self.detector;
+        let camera = &self.camera;
+        let params = &self.params;
+        let per_grey = self.per_grey_level;
+        self.linker.link(
+            &det.points,
+            &det.index,
+            (det.width, det.height),
+            (self.low, self.high),
+            params.max_link_angle_deg.to_radians() as f32,
+            |chain| {
+                let mut curve = Curve {
+                    laser,
+                    points_px: Vec::with_capacity(chain.len()),
+                    points: Vec::with_capacity(chain.len()),
+                    strength: Vec::with_capacity(chain.len()),
+                    polyline: Vec::new(),
+                };
+                for &i in chain {
+                    let p = det.points[i as usize];
+                    if let Some(n) = camera.normalized_from_pixel(p.x as f64, p.y as f64) {
+                        curve.points_px.push([p.x, p.y]);
+                        curve.points.push(n);
+                        curve.strength.push(p.strength / per_grey);
+                    }
+                }
+                if curve.points.len() < 2 || curve.length_px() < params.min_curve_length_px {
+                    return;
+                }
+                let scaled: Vec<[f64; 2]> = curve
+                    .points
+                    .iter()
+                    .map(|p| [p[0] * camera.fx, p[1] * camera.fy])
+                    .collect();
+                curve.polyline = link::douglas_peucker(&scaled, params.dp_tolerance_px)
+                    .into_iter()
+                    .map(|i| curve.points[i])
+                    .collect();
+                curves.push(curve);
+            },
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,11 +1,198 @@
-//! `crossline extract` (placeholder, filled by its owner).
+//! `crossline extract`: the laser curves of one frame, as a curves file (JSON, format in
+//! `crossline::extract`) and an overlay image.
 
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-/// (placeholder)
-#[derive(clap::Args)]
-pub struct Args {}
+use anyhow::{bail, Context};
+use crossline::camera::Camera;
+use crossline::extract::{Background, Curve, CurvesFile, ExtractParams, Extractor, LaserColour};
+use image::RgbImage;
 
-pub fn run(_args: Args) -> anyhow::Result<ExitCode> {
-    anyhow::bail!("`crossline extract` is not implemented yet")
+/// Extract the laser curves of one frame.
+///
+/// The background (a laser-off frame) is subtracted first; without one, the frame itself
+/// is the difference and ambient texture of a laser's colour may become curves.
+#[derive(clap::Args)]
+pub struct Args {
+    /// The frame (PNG or JPEG).
+    #[arg(long)]
+    input: PathBuf,
+    /// A laser-off frame of the same view.
+    #[arg(long)]
+    background: Option<PathBuf>,
+    /// Camera calibration; without it, an undistorted 60° camera of the frame's size.
+    #[arg(long)]
+    camera: Option<PathBuf>,
+    /// crossline.toml whose [extract] table sets the extraction parameters.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Where to write the curves (JSON).
+    #[arg(long, default_value = "curves.json")]
+    out: PathBuf,
+    /// Where to write an overlay: the frame darkened, curves in their laser's colour.
+    #[arg(long)]
+    overlay: Option<PathBuf>,
+    /// Laser colours, overriding the config: red-green, blue-green, red, green or blue.
+    #[arg(long)]
+    lasers: Option<String>,
+    /// Expected stripe width in pixels (full width at half maximum), overriding the config.
+    #[arg(long)]
+    line_width_px: Option<f64>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let mut params = match &args.config {
+        Some(path) => load_params(path)?,
+        None => ExtractParams::default(),
+    };
+    if let Some(name) = &args.lasers {
+        params.lasers = LaserColour::preset(name).with_context(|| {
+            format!("--lasers {name:?}: expected red-green, blue-green, red, green or blue")
+        })?;
+    }
+    if let Some(w) = args.line_width_px {
+        params.line_width_px = w;
+    }
+    let frame = load_rgb(&args.input)?;
+    let background = match &args.background {
+        Some(path) => Background::from_image(load_rgb(path)?),
+        None => Background::black(frame.width(), frame.height()),
+    };
+    let camera = match &args.camera {
+        // LEAD: wire the camera file reader here:
+        // Some(path) => crossline::camera_file::load(path).with_context(|| format!("reading camera {}", path.display()))?,
+        Some(path) => bail!(
+            "--camera {}: camera files are not supported by `extract` yet",
+            path.display()
+        ),
+        None => Camera::with_fov(frame.width(), frame.height(), 60f64.to_radians()),
+    };
+    let mut extractor = Extractor::new(&params, &camera).context("extraction parameters")?;
+    let curves = extractor
+        .try_extract(&frame, &background)
+        .with_context(|| format!("extracting {}", args.input.display()))?;
+    let points: usize = curves.iter().map(|c| c.points_px.len()).sum();
+    tracing::info!(
+        "{}: {} curves, {} points",
+        args.input.display(),
+        curves.len(),
+        points
+    );
+    if let Some(path) = &args.overlay {
+        let overlay = draw_overlay(&frame, &curves, &params.lasers);
+        overlay
+            .save(path)
+            .with_context(|| format!("writing overlay {}", path.display()))?;
+    }
+    let file = CurvesFile::new(frame.width(), frame.height(), &params.lasers, curves);
+    std::fs::write(&args.out, file.to_json())
+        .with_context(|| format!("writing curves {}", args.out.display()))?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn load_rgb(path: &Path) -> anyhow::Result<RgbImage> {
+    Ok(image::open(path)
+        .with_context(|| format!("reading image {}", path.display()))?
+        .to_rgb8())
+}
+
+/// The `[extract]` table of a crossline.toml (defaults for absent keys).
+fn load_params(path: &Path) -> anyhow::Result<ExtractParams> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("reading config {}", path.display()))?;
+    parse_params(&text).with_context(|| format!("config {}", path.display()))
+}
+
+fn parse_params(text: &str) -> anyhow::Result<ExtractParams> {
+    #[derive(serde::Deserialize)]
+    struct File {
+        #[serde(default)]
+        extract: ExtractParams,
+    }
+    // Other tables belong to other stages; only [extract] is checked strictly here.
+    let table: toml::Table = toml::from_str(text)?;
+    let extract = toml::Table::from_iter(
+        table
+            .get("extract")
+            .map(|v| ("extract".to_string(), v.clone())),
+    );
+    let file: File = extract.try_into().context("[extract]")?;
+    Ok(file.extract)
+}
+
+/// The frame at 40 % brightness with each curve drawn in its laser's display colour.
+fn draw_overlay(frame: &RgbImage, curves: &[Curve], lasers: &[LaserColour]) -> RgbImage {
+    let mut out = frame.clone();
+    for p in out.pixels_mut() {
+        for c in p.0.iter_mut() {
+            *c = (*c as u16 * 2 / 5) as u8;
+        }
+    }
+    let (w, h) = (out.width() as i64, out.height() as i64);
+    for curve in curves {
+        let colour = lasers
+            .get(curve.laser as usize)
+            .map_or([255, 255, 255], |l| l.display_rgb);
+        for seg in curve.points_px.windows(2) {
+            let (a, b) = (seg[0], seg[1]);
+            let steps = ((b[0] - a[0]).abs().max((b[1] - a[1]).abs()).ceil() as usize).max(1);
+            for i in 0..=steps {
+                let t = i as f32 / steps as f32;
+                let x = (a[0] + t * (b[0] - a[0])).round() as i64;
+                let y = (a[1] + t * (b[1] - a[1])).round() as i64;
+                if (0..w).contains(&x) && (0..h).contains(&y) {
+                    out.put_pixel(x as u32, y as u32, image::Rgb(colour));
+                }
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn real_pair_writes_curves_and_overlay() {
+        let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/real");
+        let dir = tempfile::tempdir().expect("tempdir");
+        let args = Args {
+            input: fixtures.join("laser.png"),
+            background: Some(fixtures.join("laser_background.png")),
+            camera: None,
+            config: None,
+            out: dir.path().join("curves.json"),
+            overlay: Some(dir.path().join("overlay.png")),
+            lasers: Some("red".into()),
+            line_width_px: Some(10.0),
+        };
+        run(args).expect("extract");
+        let file = CurvesFile::load(&dir.path().join("curves.json")).expect("curves file");
+        assert_eq!((file.width, file.height), (960, 1280));
+        assert_eq!(file.lasers, vec!["red".to_string()]);
+        let length: f64 = file.curves.iter().map(|c| c.length_px()).sum();
+        assert!(length > 1000.0, "{length}");
+        let overlay = image::open(dir.path().join("overlay.png"))
+            .expect("overlay")
+            .to_rgb8();
+        assert_eq!(overlay.dimensions(), (960, 1280));
+        // A curve point is drawn in red on the darkened frame.
+        let p = file.curves[0].points_px[0];
+        let px = overlay
+            .get_pixel(p[0].round() as u32, p[1].round() as u32)
+            .0;
+        assert_eq!(px, LaserColour::red().display_rgb);
+    }
+
+    #[test]
+    fn config_extract_table() {
+        let p = parse_params("[solve]\nx = 1\n[extract]\nline_width_px = 7.0\n").expect("parse");
+        assert_eq!(p.line_width_px, 7.0);
+        let p = parse_params("[solve]\nx = 1\n").expect("parse");
+        assert_eq!(p, ExtractParams::default());
+        let err = parse_params("[extract]\nline_width = 7.0\n").expect_err("unknown key");
+        assert!(format!("{err:#}").contains("line_width"), "{err:#}");
+    }
 }

@@ -1,0 +1,259 @@
+//! The background the laser is measured against: a laser-off frame, the per-pixel
+//! median of frames, or a running median over a small ring of sampled frames (the
+//! hand-held laser moves, so the median of a few spread-out frames has no laser in it).
+
+use image::RgbImage;
+
+use super::ExtractError;
+
+/// Most frames a median is taken over (the per-pixel sort runs on a stack array).
+pub const MAX_MEDIAN_FRAMES: usize = 31;
+
+/// How a running background samples frames and refreshes its median.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RunningParams {
+    /// Frames kept in the ring (odd is best; at most [`MAX_MEDIAN_FRAMES`]).
+    pub ring_len: usize,
+    /// Keep one frame out of this many offered to [`Background::update`].
+    pub sample_every: usize,
+    /// Recompute the median after this many new samples.
+    pub recompute_every: usize,
+}
+
+impl Default for RunningParams {
+    fn default() -> Self {
+        Self {
+            ring_len: 7,
+            sample_every: 10,
+            recompute_every: 2,
+        }
+    }
+}
+
+#[derive(Clone, Debug)]
+struct Running {
+    params: RunningParams,
+    ring: Vec<RgbImage>,
+    next_slot: usize,
+    offered: usize,
+    since_recompute: usize,
+}
+
+/// The background image the extractor subtracts, and optionally how it is kept fresh.
+#[derive(Clone, Debug)]
+pub struct Background {
+    image: RgbImage,
+    running: Option<Running>,
+}
+
+impl Background {
+    /// A laser-off frame.
+    pub fn from_image(image: RgbImage) -> Self {
+        Self {
+            image,
+            running: None,
+        }
+    }
+
+    /// No background: a black image (the frame itself is the difference).
+    pub fn black(width: u32, height: u32) -> Self {
+        Self::from_image(RgbImage::new(width, height))
+    }
+
+    /// The per-pixel, per-channel median of `frames` (1 to [`MAX_MEDIAN_FRAMES`] of the
+    /// same size; for an even count, the lower median).
+    pub fn median_of(frames: &[&RgbImage]) -> Result<Self, ExtractError> {
+        let first = frames.first().ok_or(ExtractError::Background {
+            message: "no frames to take the median of".into(),
+        })?;
+        check_frames(frames, first.dimensions())?;
+        let mut image = RgbImage::new(first.width(), first.height());
+        median_into(frames.iter().copied(), frames.len(), &mut image);
+        Ok(Self::from_image(image))
+    }
+
+    /// A running median, starting from `initial` (a first frame or a laser-off frame),
+    /// refreshed by [`Self::update`].
+    pub fn running(initial: RgbImage, params: RunningParams) -> Result<Self, ExtractError> {
+        if params.ring_len == 0 || params.ring_len > MAX_MEDIAN_FRAMES {
+            return Err(ExtractError::Background {
+                message: format!(
+                    "ring_len must be 1..={MAX_MEDIAN_FRAMES}, got {}",
+                    params.ring_len
+                ),
+            });
+        }
+        if params.sample_every == 0 || params.recompute_every == 0 {
+            return Err(ExtractError::Background {
+                message: "sample_every and recompute_every must be at least 1".into(),
+            });
+        }
+        Ok(Self {
+            running: Some(Running {
+                params,
+                ring: vec![initial.clone()],
+                next_slot: 1,
+                offered: 0,
+                since_recompute: 0,
+            }),
+            image: initial,
+        })
+    }
+
+    /// Offers a frame to a running background: one in `sample_every` is kept in the ring
+    /// (reusing the oldest slot's buffer) and the median is recomputed every
+    /// `recompute_every` samples. Returns whether the image changed. A fixed background
+    /// ignores this; so does a frame of the wrong size.
+    pub fn update(&mut self, frame: &RgbImage) -> bool {
+        let Some(run) = self.running.as_mut() else {
+            return false;
+        };
+        if frame.dimensions() != self.image.dimensions() {
+            tracing::warn!(
+                "background update ignored: frame {:?} is not {:?}",
+                frame.dimensions(),
+                self.image.dimensions()
+            );
+            return false;
+        }
+        run.offered += 1;
+        if run.offered % run.params.sample_every != 0 {
+            return false;
+        }
+        if run.ring.len() < run.params.ring_len {
+            run.ring.push(frame.clone());
+        } else {
+            let slot = run.next_slot % run.ring.len();
+            run.ring[slot].copy_from_slice(frame.as_raw());
+        }
+        run.next_slot = (run.next_slot + 1) % run.params.ring_len;
+        run.since_recompute += 1;
+        if run.since_recompute < run.params.recompute_every {
+            return false;
+        }
+        run.since_recompute = 0;
+        median_into(run.ring.iter(), run.ring.len(), &mut self.image);
+        true
+    }
+
+    pub fn image(&self) -> &RgbImage {
+        &self.image
+    }
+}
+
+fn check_frames(frames: &[&RgbImage], size: (u32, u32)) -> Result<(), ExtractError> {
+    if frames.len() > MAX_MEDIAN_FRAMES {
+        return Err(ExtractError::Background {
+            message: format!(
+                "at most {MAX_MEDIAN_FRAMES} frames for a median, got {}",
+                frames.len()
+            ),
+        });
+    }
+    if let Some((i, f)) = frames
+        .iter()
+        .enumerate()
+        .find(|(_, f)| f.dimensions() != size)
+    {
+        return Err(ExtractError::Background {
+            message: format!(
+                "frame {i} is {}x{}, expected {}x{} like frame 0",
+                f.width(),
+                f.height(),
+                size.0,
+                size.1
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// Per-sample median of `n` (≤ [`MAX_MEDIAN_FRAMES`]) equally sized images into `out`.
+fn median_into<'a>(
+    frames: impl Iterator<Item = &'a RgbImage> + Clone,
+    n: usize,
+    out: &mut RgbImage,
+) {
+    let raws: [&[u8]; MAX_MEDIAN_FRAMES] = {
+        let mut r: [&[u8]; MAX_MEDIAN_FRAMES] = [&[]; MAX_MEDIAN_FRAMES];
+        for (slot, f) in r.iter_mut().zip(frames) {
+            *slot = f.as_raw();
+        }
+        r
+    };
+    let raws = &raws[..n];
+    let mut values = [0u8; MAX_MEDIAN_FRAMES];
+    for (i, o) in out.iter_mut().enumerate() {
+        let vals = &mut values[..n];
+        for (v, raw) in vals.iter_mut().zip(raws) {
+            *v = raw[i];
+        }
+        // Insertion sort: n is small and the array lives on the stack.
+        for a in 1..n {
+            let mut b = a;
+            while b > 0 && vals[b - 1] > vals[b] {
+                vals.swap(b - 1, b);
+                b -= 1;
+            }
+        }
+        *o = vals[(n - 1) / 2];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn flat(v: [u8; 3]) -> RgbImage {
+        RgbImage::from_pixel(4, 3, image::Rgb(v))
+    }
+
+    #[test]
+    fn median_removes_a_moving_bright_pixel() {
+        let mut a = flat([10, 20, 30]);
+        let mut b = flat([12, 18, 30]);
+        let c = flat([11, 22, 31]);
+        a.put_pixel(1, 1, image::Rgb([255, 0, 0]));
+        b.put_pixel(2, 1, image::Rgb([255, 0, 0]));
+        let bg = Background::median_of(&[&a, &b, &c]).expect("median");
+        assert_eq!(bg.image().get_pixel(0, 0).0, [11, 20, 30]);
+        assert_eq!(bg.image().get_pixel(1, 1).0, [12, 18, 30]);
+        assert_eq!(bg.image().get_pixel(2, 1).0, [11, 20, 30]);
+    }
+
+    #[test]
+    fn median_rejects_empty_and_mismatched() {
+        assert!(Background::median_of(&[]).is_err());
+        let a = flat([0; 3]);
+        let b = RgbImage::new(5, 3);
+        let err = Background::median_of(&[&a, &b]).expect_err("size mismatch");
+        assert!(err.to_string().contains("frame 1 is 5x3"), "{err}");
+    }
+
+    #[test]
+    fn running_median_follows_the_scene() {
+        let params = RunningParams {
+            ring_len: 3,
+            sample_every: 2,
+            recompute_every: 1,
+        };
+        let mut bg = Background::running(flat([0; 3]), params).expect("running");
+        // Offered frames 1..=6: frames 2, 4, 6 are sampled.
+        let mut changed = 0;
+        for _ in 0..6 {
+            if bg.update(&flat([100, 100, 100])) {
+                changed += 1;
+            }
+        }
+        assert_eq!(changed, 3);
+        assert_eq!(bg.image().get_pixel(3, 2).0, [100, 100, 100]);
+        assert!(Background::running(
+            flat([0; 3]),
+            RunningParams {
+                ring_len: 0,
+                ..params
+            }
+        )
+        .is_err());
+    }
+}

@@ -1,0 +1,243 @@
+//! Colour classes of the background-subtracted difference: an RGB → class look-up table
+//! built once from the HSV limits of [`ColourParams`], and the per-laser response.
+//!
+//! Owns only the colour decision. The input format (RGB here; YUYV later) is the
+//! caller's: it hands over the difference `(dr, dg, db)` of one pixel.
+
+use serde::{Deserialize, Serialize};
+
+/// Bits kept per channel when indexing the table: 32 levels, a 32 KiB table.
+const LUT_BITS: u32 = 5;
+const LUT_SHIFT: u32 = 8 - LUT_BITS;
+
+/// Class of a pixel's difference from the background.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Class {
+    /// Laser 0 of the cross.
+    Laser0 = 0,
+    /// Laser 1 of the cross.
+    Laser1 = 1,
+    /// Bright but desaturated: a saturated stripe centre, or an ambient change. Counts
+    /// for every laser.
+    White = 2,
+    /// Saturated in a hue that no laser has: not a laser.
+    Other = 3,
+}
+
+/// One laser of the cross, told apart by the hue of its difference image.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LaserColour {
+    /// Name for logs, overlays and the curves file ("red", "green", "blue").
+    pub name: String,
+    /// Hue range in degrees `[from, to]`, going up from `from`; it wraps through 360
+    /// when `from > to` (red is `[320, 30]`).
+    pub hue_deg: [f32; 2],
+    /// Colour drawn in overlays.
+    pub display_rgb: [u8; 3],
+}
+
+impl LaserColour {
+    /// The lasers of a named preset: `red-green`, `blue-green`, `red`, `green`, `blue`.
+    pub fn preset(name: &str) -> Option<Vec<Self>> {
+        Some(match name {
+            "red-green" => vec![Self::red(), Self::green()],
+            "blue-green" => vec![Self::blue(), Self::green()],
+            "red" => vec![Self::red()],
+            "green" => vec![Self::green()],
+            "blue" => vec![Self::blue()],
+            _ => return None,
+        })
+    }
+
+    pub fn red() -> Self {
+        Self {
+            name: "red".into(),
+            hue_deg: [320.0, 35.0],
+            display_rgb: [255, 40, 40],
+        }
+    }
+    pub fn green() -> Self {
+        Self {
+            name: "green".into(),
+            hue_deg: [70.0, 170.0],
+            display_rgb: [40, 255, 40],
+        }
+    }
+    pub fn blue() -> Self {
+        Self {
+            name: "blue".into(),
+            hue_deg: [190.0, 280.0],
+            display_rgb: [60, 120, 255],
+        }
+    }
+
+    fn contains_hue(&self, hue_deg: f32) -> bool {
+        let [from, to] = self.hue_deg;
+        if from <= to {
+            (from..=to).contains(&hue_deg)
+        } else {
+            hue_deg >= from || hue_deg <= to
+        }
+    }
+}
+
+/// Saturation and brightness limits of the colour decision.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ColourParams {
+    /// Minimum HSV value (max channel, 0–255) of the difference for a pixel to get a
+    /// colour at all; dimmer pixels are weak tails and count for every laser.
+    pub min_value: u8,
+    /// Minimum HSV saturation (0–1) for a hue to mean anything; below it a bright pixel
+    /// is [`Class::White`] (stripes saturate to white at their centres).
+    pub min_saturation: f32,
+}
+
+impl Default for ColourParams {
+    fn default() -> Self {
+        Self {
+            min_value: 24,
+            min_saturation: 0.25,
+        }
+    }
+}
+
+/// HSV hue in degrees `[0, 360)` and saturation `[0, 1]` of an RGB triple.
+pub fn hue_saturation(r: f32, g: f32, b: f32) -> (f32, f32) {
+    let max = r.max(g).max(b);
+    let min = r.min(g).min(b);
+    let chroma = max - min;
+    if max <= 0.0 || chroma <= 0.0 {
+        return (0.0, 0.0);
+    }
+    let hue = if max == r {
+        60.0 * ((g - b) / chroma)
+    } else if max == g {
+        60.0 * ((b - r) / chroma + 2.0)
+    } else {
+        60.0 * ((r - g) / chroma + 4.0)
+    };
+    (hue.rem_euclid(360.0), chroma / max)
+}
+
+/// The colour look-up table: quantised difference RGB → [`Class`].
+#[derive(Clone, Debug)]
+pub struct ColourLut {
+    table: Vec<u8>,
+    min_value: u8,
+}
+
+impl ColourLut {
+    /// Builds the table; `lasers` holds one or two lasers (a hue in both ranges goes to
+    /// the first).
+    pub fn new(lasers: &[LaserColour], params: &ColourParams) -> Self {
+        let levels = 1usize << LUT_BITS;
+        let mut table = vec![Class::Other as u8; levels * levels * levels];
+        let centre = |q: usize| ((q << LUT_SHIFT) as f32) + 0.5 * (1u32 << LUT_SHIFT) as f32;
+        for qr in 0..levels {
+            for qg in 0..levels {
+                for qb in 0..levels {
+                    let (h, s) = hue_saturation(centre(qr), centre(qg), centre(qb));
+                    let class = if s < params.min_saturation {
+                        Class::White
+                    } else {
+                        match lasers.iter().position(|l| l.contains_hue(h)) {
+                            Some(0) => Class::Laser0,
+                            Some(1) => Class::Laser1,
+                            _ => Class::Other,
+                        }
+                    };
+                    table[(qr << (2 * LUT_BITS)) | (qg << LUT_BITS) | qb] = class as u8;
+                }
+            }
+        }
+        Self {
+            table,
+            min_value: params.min_value,
+        }
+    }
+
+    /// Class of a difference whose max channel is at least `min_value`; `None` for a
+    /// weak pixel (a stripe tail or noise).
+    #[inline]
+    pub fn classify(&self, dr: u8, dg: u8, db: u8) -> Option<u8> {
+        if dr.max(dg).max(db) < self.min_value {
+            return None;
+        }
+        let i = ((dr as usize >> LUT_SHIFT) << (2 * LUT_BITS))
+            | ((dg as usize >> LUT_SHIFT) << LUT_BITS)
+            | (db as usize >> LUT_SHIFT);
+        Some(self.table[i])
+    }
+
+    /// Response of laser `laser` to one pixel's difference, and whether the pixel is
+    /// another laser's: the difference's HSV value when the pixel is weak, white or of
+    /// that laser's colour; zero on any other colour. So the two stripes of a cross
+    /// stay apart where they cross, and the detector can drop points whose smoothing
+    /// window reaches into the other laser's stripe.
+    #[inline]
+    pub fn response(&self, laser: u8, dr: u8, dg: u8, db: u8) -> (u8, bool) {
+        let v = dr.max(dg).max(db);
+        match self.classify(dr, dg, db) {
+            None => (v, false),
+            Some(c) if c == laser || c == Class::White as u8 => (v, false),
+            Some(c) if c == Class::Other as u8 => (0, false),
+            Some(_) => (0, true),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hue_of_primaries_and_mixtures() {
+        let close =
+            |a: (f32, f32), b: (f32, f32)| (a.0 - b.0).abs() < 1e-3 && (a.1 - b.1).abs() < 1e-4;
+        assert!(close(hue_saturation(255.0, 0.0, 0.0), (0.0, 1.0)));
+        assert!(close(hue_saturation(0.0, 255.0, 0.0), (120.0, 1.0)));
+        assert!(close(hue_saturation(0.0, 0.0, 255.0), (240.0, 1.0)));
+        assert!(close(hue_saturation(255.0, 0.0, 255.0), (300.0, 1.0)));
+        // A pink: hue just below 360, saturation 1 − 64/255.
+        let (h, s) = hue_saturation(255.0, 64.0, 128.0);
+        assert!((h - (360.0 - 60.0 * 64.0 / 191.0)).abs() < 1e-3, "{h}");
+        assert!((s - 191.0 / 255.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn red_green_classes() {
+        let lut = ColourLut::new(
+            &[LaserColour::red(), LaserColour::green()],
+            &ColourParams::default(),
+        );
+        assert_eq!(lut.classify(200, 10, 20), Some(Class::Laser0 as u8));
+        assert_eq!(lut.classify(255, 60, 120), Some(Class::Laser0 as u8)); // pinkish red
+        assert_eq!(lut.classify(10, 220, 30), Some(Class::Laser1 as u8));
+        assert_eq!(lut.classify(250, 250, 240), Some(Class::White as u8));
+        assert_eq!(lut.classify(20, 30, 200), Some(Class::Other as u8)); // blue
+        assert_eq!(lut.classify(10, 5, 3), None);
+        // Red's response keeps red, white and weak pixels and drops green ones.
+        assert_eq!(lut.response(0, 200, 10, 20), (200, false));
+        assert_eq!(lut.response(0, 10, 220, 30), (0, true));
+        assert_eq!(lut.response(1, 10, 220, 30), (220, false));
+        assert_eq!(lut.response(1, 250, 250, 240), (250, false));
+        assert_eq!(lut.response(1, 10, 5, 3), (10, false));
+        assert_eq!(lut.response(1, 20, 30, 200), (0, false));
+    }
+
+    #[test]
+    fn blue_green_and_single_laser() {
+        let lut = ColourLut::new(
+            &[LaserColour::blue(), LaserColour::green()],
+            &ColourParams::default(),
+        );
+        assert_eq!(lut.classify(20, 60, 230), Some(Class::Laser0 as u8));
+        assert_eq!(lut.classify(30, 230, 40), Some(Class::Laser1 as u8));
+        assert_eq!(lut.classify(230, 30, 40), Some(Class::Other as u8));
+        let lut = ColourLut::new(&[LaserColour::red()], &ColourParams::default());
+        assert_eq!(lut.classify(30, 230, 40), Some(Class::Other as u8));
+        assert_eq!(lut.response(0, 30, 230, 40), (0, false));
+    }
+}

@@ -1,0 +1,374 @@
+//! Steger's ridge detector restricted to tiles that can hold a stripe.
+//!
+//! The caller marks *active* tiles (tiles holding at least one laser-coloured pixel) and
+//! fills the response image around them; the detector then runs the separable
+//! Gaussian-derivative filters and the Hessian only there:
+//! - the response is needed on the active tiles dilated by one tile (8-neighbourhood),
+//! - the row pass (smooth, first and second derivative along x) on the active tiles
+//!   dilated by one tile vertically,
+//! - the column pass, the Hessian and the sub-pixel test on the active tiles.
+//!
+//! A tile is at least as large as the kernel radius, so one tile of margin holds every
+//! kernel's support. All buffers are full-frame and reused; nothing is allocated per
+//! frame once the point list has grown to its working size.
+
+/// Offsets `-r..=r` of the sampled Gaussian and its first two derivatives, normalised so
+/// that they are exact on constants, ramps and parabolas.
+#[derive(Clone, Debug)]
+pub(crate) struct Kernels {
+    pub radius: usize,
+    pub k0: Vec<f32>,
+    pub k1: Vec<f32>,
+    pub k2: Vec<f32>,
+}
+
+impl Kernels {
+    pub fn new(sigma: f64) -> Self {
+        let radius = (3.5 * sigma).ceil().max(1.0) as usize;
+        let offsets: Vec<f64> = (0..=2 * radius).map(|j| j as f64 - radius as f64).collect();
+        let g: Vec<f64> = offsets
+            .iter()
+            .map(|&i| (-0.5 * i * i / (sigma * sigma)).exp())
+            .collect();
+        let sum_g: f64 = g.iter().sum();
+        let k0: Vec<f64> = g.iter().map(|v| v / sum_g).collect();
+        // Correlation convention: out(x) = Σ_i f(x + i) k(i).
+        let k1: Vec<f64> = offsets.iter().zip(&k0).map(|(i, g)| i * g).collect();
+        let s1: f64 = offsets.iter().zip(&k1).map(|(i, k)| i * k).sum();
+        let k1: Vec<f64> = k1.iter().map(|k| k / s1).collect();
+        let m: f64 = offsets.iter().zip(&k0).map(|(i, g)| i * i * g).sum();
+        let k2: Vec<f64> = offsets
+            .iter()
+            .zip(&k0)
+            .map(|(i, g)| (i * i - m) * g)
+            .collect();
+        let s2: f64 = offsets.iter().zip(&k2).map(|(i, k)| 0.5 * i * i * k).sum();
+        let k2: Vec<f64> = k2.iter().map(|k| k / s2).collect();
+        let f = |v: Vec<f64>| v.into_iter().map(|x| x as f32).collect();
+        Self {
+            radius,
+            k0: f(k0),
+            k1: f(k1),
+            k2: f(k2),
+        }
+    }
+}
+
+/// One ridge point: sub-pixel position (pixel centres at integers), unit normal across
+/// the line, and strength `-λ` (the magnitude of the negative Hessian eigenvalue).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct LinePoint {
+    pub x: f32,
+    pub y: f32,
+    pub nx: f32,
+    pub ny: f32,
+    pub strength: f32,
+    pub pixel: u32,
+}
+
+pub(crate) const NO_POINT: u32 = u32::MAX;
+
+const TILE_RESPONSE: u8 = 1;
+const TILE_ROWS: u8 = 2;
+
+pub(crate) struct Detector {
+    pub width: usize,
+    pub height: usize,
+    pub tile: usize,
+    pub tiles_x: usize,
+    pub tiles_y: usize,
+    kernels: Kernels,
+    pub response: Vec<f32>,
+    /// Per pixel: nonzero where the response was zeroed for another laser's colour.
+    pub masked: Vec<u8>,
+    /// Points whose window of this radius holds a masked pixel are dropped.
+    mask_radius: usize,
+    row_s: Vec<f32>,
+    row_d1: Vec<f32>,
+    row_d2: Vec<f32>,
+    /// Per tile: `TILE_RESPONSE` and/or `TILE_ROWS` (what must be computed there).
+    needs: Vec<u8>,
+    acc: Vec<f32>,
+    pub points: Vec<LinePoint>,
+    /// Per pixel: index into `points`, or `NO_POINT`.
+    pub index: Vec<u32>,
+}
+
+impl Detector {
+    pub fn new(width: usize, height: usize, sigma: f64) -> Self {
+        let kernels = Kernels::new(sigma);
+        let tile = kernels.radius.max(16);
+        let tiles_x = width.div_ceil(tile);
+        let tiles_y = height.div_ceil(tile);
+        let n = width * height;
+        Self {
+            width,
+            height,
+            tile,
+            tiles_x,
+            tiles_y,
+            response: vec![0.0; n],
+            masked: vec![0; n],
+            mask_radius: (2.5 * sigma).ceil() as usize,
+            row_s: vec![0.0; n],
+            row_d1: vec![0.0; n],
+            row_d2: vec![0.0; n],
+            needs: vec![0; tiles_x * tiles_y],
+            acc: vec![0.0; 6 * tile],
+            points: Vec::new(),
+            index: vec![NO_POINT; n],
+            kernels,
+        }
+    }
+
+    /// Pixel bounds `(x0, x1, y0, y1)` of tile `t`.
+    pub fn tile_bounds(&self, t: usize) -> (usize, usize, usize, usize) {
+        let (tx, ty) = (t % self.tiles_x, t / self.tiles_x);
+        let x0 = tx * self.tile;
+        let y0 = ty * self.tile;
+        (
+            x0,
+            (x0 + self.tile).min(self.width),
+            y0,
+            (y0 + self.tile).min(self.height),
+        )
+    }
+
+    /// Marks what each tile needs from the active tiles, and calls
+    /// `fill(y, x0, response, masked)` for every tile row whose response must be
+    /// computed; the slices cover pixels `x0..x0 + response.len()` of image row `y`, and
+    /// `masked` must be set nonzero where the response was zeroed for another colour.
+    pub fn prepare(
+        &mut self,
+        active: &[bool],
+        mut fill: impl FnMut(usize, usize, &mut [f32], &mut [u8]),
+    ) {
+        self.needs.fill(0);
+        let (tx_n, ty_n) = (self.tiles_x as isize, self.tiles_y as isize);
+        for (t, _) in active.iter().enumerate().filter(|(_, a)| **a) {
+            let (tx, ty) = ((t % self.tiles_x) as isize, (t / self.tiles_x) as isize);
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let (x, y) = (tx + dx, ty + dy);
+                    if x < 0 || y < 0 || x >= tx_n || y >= ty_n {
+                        continue;
+                    }
+                    let u = (y * tx_n + x) as usize;
+                    self.needs[u] |= TILE_RESPONSE;
+                    if dx == 0 {
+                        self.needs[u] |= TILE_ROWS;
+                    }
+                }
+            }
+        }
+        for t in 0..self.needs.len() {
+            if self.needs[t] & TILE_RESPONSE == 0 {
+                continue;
+            }
+            let (x0, x1, y0, y1) = self.tile_bounds(t);
+            for y in y0..y1 {
+                let span = y * self.width + x0..y * self.width + x1;
+                fill(
+                    y,
+                    x0,
+                    &mut self.response[span.clone()],
+                    &mut self.masked[span],
+                );
+            }
+        }
+    }
+
+    /// Finds ridge points with strength at least `min_strength` on the active tiles
+    /// (after [`Self::prepare`]). Clears the previous frame's points first.
+    pub fn detect(&mut self, active: &[bool], min_strength: f32) {
+        for p in &self.points {
+            self.index[p.pixel as usize] = NO_POINT;
+        }
+        self.points.clear();
+        for t in 0..self.needs.len() {
+            if self.needs[t] & TILE_ROWS != 0 {
+                self.row_pass(t);
+            }
+        }
+        for (t, _) in active.iter().enumerate().filter(|(_, a)| **a) {
+            self.column_pass_and_hessian(t, min_strength);
+        }
+    }
+
+    fn row_pass(&mut self, t: usize) {
+        let (x0, x1, y0, y1) = self.tile_bounds(t);
+        let w = self.width;
+        let r = self.kernels.radius as isize;
+        let fast = x0 as isize >= r && (x1 as isize + r) <= w as isize;
+        for y in y0..y1 {
+            let row = &self.response[y * w..(y + 1) * w];
+            let o0 = &mut self.row_s[y * w + x0..y * w + x1];
+            let o1 = &mut self.row_d1[y * w + x0..y * w + x1];
+            let o2 = &mut self.row_d2[y * w + x0..y * w + x1];
+            o0.fill(0.0);
+            o1.fill(0.0);
+            o2.fill(0.0);
+            for (j, i) in (-r..=r).enumerate() {
+                let (a, b, c) = (self.kernels.k0[j], self.kernels.k1[j], self.kernels.k2[j]);
+                if fast {
+                    let s = (x0 as isize + i) as usize;
+                    let src = &row[s..s + (x1 - x0)];
+                    for (((v, p0), p1), p2) in src
+                        .iter()
+                        .zip(o0.iter_mut())
+                        .zip(o1.iter_mut())
+                        .zip(o2.iter_mut())
+                    {
+                        *p0 += v * a;
+                        *p1 += v * b;
+                        *p2 += v * c;
+                    }
+                } else {
+                    for (k, x) in (x0..x1).enumerate() {
+                        let xs = (x as isize + i).clamp(0, w as isize - 1) as usize;
+                        let v = row[xs];
+                        o0[k] += v * a;
+                        o1[k] += v * b;
+                        o2[k] += v * c;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Whether a pixel zeroed for another colour lies within `mask_radius` of `(x, y)`:
+    /// the smoothed response there is distorted by the hole (e.g. at the cross centre).
+    fn near_mask(masked: &[u8], (w, h): (usize, usize), r: usize, x: usize, y: usize) -> bool {
+        let (xa, xb) = (x.saturating_sub(r), (x + r + 1).min(w));
+        let (ya, yb) = (y.saturating_sub(r), (y + r + 1).min(h));
+        (ya..yb).any(|yy| masked[yy * w + xa..yy * w + xb].iter().any(|&m| m != 0))
+    }
+
+    fn column_pass_and_hessian(&mut self, t: usize, min_strength: f32) {
+        let (x0, x1, y0, y1) = self.tile_bounds(t);
+        let (w, h) = (self.width, self.height as isize);
+        let n = x1 - x0;
+        let r = self.kernels.radius as isize;
+        let (gx, rest) = self.acc.split_at_mut(self.tile);
+        let (gy, rest) = rest.split_at_mut(self.tile);
+        let (gxx, rest) = rest.split_at_mut(self.tile);
+        let (gxy, rest) = rest.split_at_mut(self.tile);
+        let (gyy, g) = rest.split_at_mut(self.tile);
+        for y in y0..y1 {
+            for a in [&mut *g, &mut *gx, &mut *gy, &mut *gxx, &mut *gxy, &mut *gyy] {
+                a[..n].fill(0.0);
+            }
+            for (j, i) in (-r..=r).enumerate() {
+                let ys = (y as isize + i).clamp(0, h - 1) as usize;
+                let span = ys * w + x0..ys * w + x1;
+                let (k0, k1, k2) = (self.kernels.k0[j], self.kernels.k1[j], self.kernels.k2[j]);
+                let s = &self.row_s[span.clone()];
+                let d1 = &self.row_d1[span.clone()];
+                let d2 = &self.row_d2[span];
+                // Three zipped loops rather than one indexed one: no bounds checks, so
+                // they vectorise.
+                for (((a0, a1), a2), v) in g[..n]
+                    .iter_mut()
+                    .zip(gy[..n].iter_mut())
+                    .zip(gyy[..n].iter_mut())
+                    .zip(s)
+                {
+                    *a0 += v * k0;
+                    *a1 += v * k1;
+                    *a2 += v * k2;
+                }
+                for ((a0, a1), v) in gx[..n].iter_mut().zip(gxy[..n].iter_mut()).zip(d1) {
+                    *a0 += v * k0;
+                    *a1 += v * k1;
+                }
+                for (a0, v) in gxx[..n].iter_mut().zip(d2) {
+                    *a0 += v * k0;
+                }
+            }
+            for k in 0..n {
+                let (a, b, c) = (gxx[k], gxy[k], gyy[k]);
+                let half = 0.5 * (a + c);
+                // Bright line: the strongest curvature is across it and negative.
+                if half > 0.0 {
+                    continue;
+                }
+                let disc2 = 0.25 * (a - c) * (a - c) + b * b;
+                // −λ = disc − half ≥ min_strength, tested without the square root first.
+                let need = min_strength + half;
+                if need > 0.0 && disc2 < need * need {
+                    continue;
+                }
+                let disc = disc2.sqrt();
+                let lambda = half - disc;
+                let (ux, uy) = (b, lambda - a);
+                let (vx, vy) = (lambda - c, b);
+                let (mut nx, mut ny) = if ux * ux + uy * uy >= vx * vx + vy * vy {
+                    (ux, uy)
+                } else {
+                    (vx, vy)
+                };
+                let norm = (nx * nx + ny * ny).sqrt();
+                if norm <= f32::EPSILON * disc.max(f32::MIN_POSITIVE) {
+                    // Isotropic Hessian: a blob, not a line.
+                    continue;
+                }
+                nx /= norm;
+                ny /= norm;
+                // Offset to the peak along the normal from the second-order Taylor
+                // expansion of ln g rather than of g: exact for a Gaussian profile of
+                // any width, where Steger's plain step −g'/g'' overshoots by about
+                // d³/(s² + σ²) (up to 0.05 px at d = 0.5 px, which also opens gaps
+                // where the line crosses between two pixel rows).
+                let d1 = nx * gx[k] + ny * gy[k];
+                let gk = g[k];
+                let tt = if gk > 0.0 {
+                    d1 * gk / (d1 * d1 - gk * lambda)
+                } else {
+                    -d1 / lambda
+                };
+                let (ox, oy) = (tt * nx, tt * ny);
+                if ox.abs() > 0.5 || oy.abs() > 0.5 {
+                    continue;
+                }
+                let x = x0 + k;
+                if Self::near_mask(&self.masked, (w, self.height), self.mask_radius, x, y) {
+                    continue;
+                }
+                let pixel = y * w + x;
+                self.index[pixel] = self.points.len() as u32;
+                self.points.push(LinePoint {
+                    x: x as f32 + ox,
+                    y: y as f32 + oy,
+                    nx,
+                    ny,
+                    strength: -lambda,
+                    pixel: pixel as u32,
+                });
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kernels_are_exact_on_polynomials() {
+        for sigma in [1.0, 1.3, 2.5] {
+            let k = Kernels::new(sigma);
+            let r = k.radius as i32;
+            let apply = |ker: &[f32], f: &dyn Fn(f64) -> f64| -> f64 {
+                (-r..=r)
+                    .zip(ker)
+                    .map(|(i, c)| f(3.0 + i as f64) * *c as f64)
+                    .sum()
+            };
+            assert!((apply(&k.k0, &|_| 1.0) - 1.0).abs() < 1e-5);
+            assert!((apply(&k.k1, &|x| 2.0 * x + 1.0) - 2.0).abs() < 1e-5);
+            assert!(apply(&k.k1, &|_| 1.0).abs() < 1e-6);
+            assert!((apply(&k.k2, &|x| 1.5 * x * x - x + 4.0) - 3.0).abs() < 1e-4);
+            assert!(apply(&k.k2, &|_| 1.0).abs() < 1e-5);
+        }
+    }
+}

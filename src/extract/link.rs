@@ -1,0 +1,271 @@
+//! Linking ridge points into ordered polylines (after Steger 1998, §4) and
+//! Douglas–Peucker simplification.
+//!
+//! From the strongest unused point above the high threshold, the line is followed in
+//! both directions: at each step the three neighbour pixels ahead (in the octant of the
+//! line direction) are examined, and the one minimising distance plus angle change is
+//! taken, provided its direction differs by less than the maximum angle. The trace
+//! stops when no neighbour qualifies, or when the best neighbour already belongs to a
+//! curve (a junction: the crossing of two curves, or a branch).
+
+use super::detect::{LinePoint, NO_POINT};
+
+/// Reused buffers of the linker.
+#[derive(Default)]
+pub(crate) struct Linker {
+    order: Vec<u32>,
+    used: Vec<bool>,
+    forward: Vec<u32>,
+    backward: Vec<u32>,
+    chain: Vec<u32>,
+}
+
+impl Linker {
+    /// Calls `emit(chain)` for each linked chain of point indices, in order along the
+    /// line. Seeds need `strength >= high`; points with `strength < low` are never used.
+    pub fn link(
+        &mut self,
+        points: &[LinePoint],
+        index: &[u32],
+        (width, height): (usize, usize),
+        (low, high): (f32, f32),
+        max_angle_rad: f32,
+        mut emit: impl FnMut(&[u32]),
+    ) {
+        self.order.clear();
+        self.order
+            .extend((0..points.len() as u32).filter(|&i| points[i as usize].strength >= high));
+        self.order.sort_unstable_by(|&a, &b| {
+            points[b as usize]
+                .strength
+                .total_cmp(&points[a as usize].strength)
+        });
+        self.used.clear();
+        self.used.resize(points.len(), false);
+        let cos_max = max_angle_rad.cos();
+        for oi in 0..self.order.len() {
+            let seed = self.order[oi];
+            if self.used[seed as usize] {
+                continue;
+            }
+            self.used[seed as usize] = true;
+            let p = points[seed as usize];
+            let dir = (-p.ny, p.nx);
+            let grid = Grid {
+                points,
+                index,
+                width,
+                height,
+                low,
+                cos_max,
+            };
+            trace(&grid, seed, dir, &mut self.used, &mut self.forward);
+            trace(
+                &grid,
+                seed,
+                (-dir.0, -dir.1),
+                &mut self.used,
+                &mut self.backward,
+            );
+            self.chain.clear();
+            self.chain.extend(self.backward.iter().rev());
+            self.chain.push(seed);
+            self.chain.extend_from_slice(&self.forward);
+            emit(&self.chain);
+        }
+    }
+}
+
+struct Grid<'a> {
+    points: &'a [LinePoint],
+    index: &'a [u32],
+    width: usize,
+    height: usize,
+    low: f32,
+    cos_max: f32,
+}
+
+/// Follows the line from `start` along `dir`; `out` receives the points after `start`.
+fn trace(g: &Grid, start: u32, mut dir: (f32, f32), used: &mut [bool], out: &mut Vec<u32>) {
+    out.clear();
+    let mut cur = start;
+    loop {
+        let p = g.points[cur as usize];
+        let (px, py) = (
+            (p.pixel as usize % g.width) as isize,
+            (p.pixel as usize / g.width) as isize,
+        );
+        // Octant of the direction, and its two neighbours.
+        let octant = (dir.1.atan2(dir.0) / std::f32::consts::FRAC_PI_4).round() as i32;
+        let mut best: Option<(u32, f32, (f32, f32))> = None;
+        for d in [octant - 1, octant, octant + 1] {
+            let (ox, oy) = OCTANT_STEPS[d.rem_euclid(8) as usize];
+            let (qx, qy) = (px + ox, py + oy);
+            if qx < 0 || qy < 0 || qx >= g.width as isize || qy >= g.height as isize {
+                continue;
+            }
+            let qi = g.index[qy as usize * g.width + qx as usize];
+            if qi == NO_POINT {
+                continue;
+            }
+            let q = g.points[qi as usize];
+            if q.strength < g.low {
+                continue;
+            }
+            let mut qdir = (-q.ny, q.nx);
+            let mut cos = qdir.0 * dir.0 + qdir.1 * dir.1;
+            if cos < 0.0 {
+                qdir = (-qdir.0, -qdir.1);
+                cos = -cos;
+            }
+            if cos < g.cos_max {
+                continue;
+            }
+            let (dx, dy) = (q.x - p.x, q.y - p.y);
+            // Never step backwards along the line.
+            if dx * dir.0 + dy * dir.1 <= 0.0 {
+                continue;
+            }
+            let cost = (dx * dx + dy * dy).sqrt() + cos.min(1.0).acos();
+            if best.is_none_or(|(_, c, _)| cost < c) {
+                best = Some((qi, cost, qdir));
+            }
+        }
+        let Some((next, _, next_dir)) = best else {
+            return;
+        };
+        if used[next as usize] {
+            return;
+        }
+        used[next as usize] = true;
+        out.push(next);
+        cur = next;
+        dir = next_dir;
+    }
+}
+
+/// Pixel steps of the eight octants, counter-clockwise from +x in image axes
+/// (octant 2 is +y, down).
+const OCTANT_STEPS: [(isize, isize); 8] = [
+    (1, 0),
+    (1, 1),
+    (0, 1),
+    (-1, 1),
+    (-1, 0),
+    (-1, -1),
+    (0, -1),
+    (1, -1),
+];
+
+/// Indices of the points kept by Douglas–Peucker with tolerance `tol` (same units as
+/// the points), first and last always kept, in order.
+pub fn douglas_peucker(points: &[[f64; 2]], tol: f64) -> Vec<usize> {
+    let n = points.len();
+    if n <= 2 {
+        return (0..n).collect();
+    }
+    let mut keep = vec![false; n];
+    keep[0] = true;
+    keep[n - 1] = true;
+    let mut stack = vec![(0usize, n - 1)];
+    while let Some((a, b)) = stack.pop() {
+        if b <= a + 1 {
+            continue;
+        }
+        let (pa, pb) = (points[a], points[b]);
+        let (ex, ey) = (pb[0] - pa[0], pb[1] - pa[1]);
+        let len = (ex * ex + ey * ey).sqrt();
+        let mut worst = (0.0, a);
+        for (i, p) in points.iter().enumerate().take(b).skip(a + 1) {
+            let (vx, vy) = (p[0] - pa[0], p[1] - pa[1]);
+            let d = if len > 0.0 {
+                (vx * ey - vy * ex).abs() / len
+            } else {
+                (vx * vx + vy * vy).sqrt()
+            };
+            if d > worst.0 {
+                worst = (d, i);
+            }
+        }
+        if worst.0 > tol {
+            keep[worst.1] = true;
+            stack.push((a, worst.1));
+            stack.push((worst.1, b));
+        }
+    }
+    (0..n).filter(|&i| keep[i]).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn douglas_peucker_keeps_corners_only() {
+        // An L of 21 points: straight, a right-angle corner, straight.
+        let mut pts: Vec<[f64; 2]> = (0..=10).map(|i| [i as f64, 0.0]).collect();
+        pts.extend((1..=10).map(|i| [10.0, i as f64]));
+        assert_eq!(douglas_peucker(&pts, 0.3), vec![0, 10, 20]);
+        // A gentle arc of sagitta 1 needs inner points at tolerance 0.3, none at 2.
+        let arc: Vec<[f64; 2]> = (0..=20)
+            .map(|i| {
+                let x = i as f64 - 10.0;
+                [x, 1.0 - x * x / 100.0]
+            })
+            .collect();
+        assert!(douglas_peucker(&arc, 0.2).len() > 3);
+        assert_eq!(douglas_peucker(&arc, 2.0), vec![0, 20]);
+        // Every dropped point stays within tolerance of the kept polyline.
+        let kept = douglas_peucker(&arc, 0.2);
+        for w in kept.windows(2) {
+            let (a, b) = (arc[w[0]], arc[w[1]]);
+            for p in &arc[w[0]..=w[1]] {
+                let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+                let d = ((p[0] - a[0]) * ey - (p[1] - a[1]) * ex).abs() / ex.hypot(ey);
+                assert!(d <= 0.2 + 1e-12);
+            }
+        }
+    }
+
+    fn point_at(x: usize, y: usize, w: usize, angle: f32, strength: f32) -> LinePoint {
+        // Normal perpendicular to the direction `angle`.
+        LinePoint {
+            x: x as f32,
+            y: y as f32,
+            nx: -angle.sin(),
+            ny: angle.cos(),
+            strength,
+            pixel: (y * w + x) as u32,
+        }
+    }
+
+    #[test]
+    fn links_two_crossing_lines_into_separate_chains() {
+        let (w, h) = (20, 20);
+        let mut points = Vec::new();
+        let mut index = vec![NO_POINT; w * h];
+        // A horizontal line on row 10 and a vertical one on column 5.
+        for x in 0..w {
+            index[10 * w + x] = points.len() as u32;
+            points.push(point_at(x, 10, w, 0.0, 10.0));
+        }
+        for y in 0..h {
+            if y != 10 {
+                index[y * w + 5] = points.len() as u32;
+                points.push(point_at(5, y, w, std::f32::consts::FRAC_PI_2, 5.0));
+            }
+        }
+        let mut chains: Vec<Vec<u32>> = Vec::new();
+        Linker::default().link(&points, &index, (w, h), (1.0, 2.0), 0.5, |c| {
+            chains.push(c.to_vec())
+        });
+        // The horizontal line first (strongest), whole and in order.
+        let xs: Vec<f32> = chains[0].iter().map(|&i| points[i as usize].x).collect();
+        assert!(xs.windows(2).all(|p| (p[1] - p[0]).abs() == 1.0), "{xs:?}");
+        assert_eq!(xs.len(), w);
+        // The vertical line is cut at the crossing into two pieces, all points used.
+        assert_eq!(chains.len(), 3);
+        let vertical: usize = chains[1..].iter().map(|c| c.len()).sum();
+        assert_eq!(vertical, h - 1);
+    }
+}

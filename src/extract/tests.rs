@@ -1,0 +1,521 @@
+//! Extraction against analytic truth: rendered Gaussian stripes of known centre.
+
+use super::*;
+
+/// xorshift64* with Box–Muller: fixed seeds, no dependency.
+struct Rng(u64);
+
+impl Rng {
+    fn uniform(&mut self) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        let v = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D);
+        ((v >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    }
+    fn normal(&mut self) -> f64 {
+        let (a, b) = (self.uniform(), self.uniform());
+        (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+    }
+}
+
+/// A stripe: colour weights per channel, peak, Gaussian std `s` across it, and the
+/// signed distance of a pixel centre to its centre line.
+struct Stripe<'a> {
+    rgb: [f64; 3],
+    peak: f64,
+    s: f64,
+    distance: &'a dyn Fn(f64, f64) -> f64,
+}
+
+fn render(
+    w: u32,
+    h: u32,
+    background: &dyn Fn(f64, f64) -> [f64; 3],
+    stripes: &[Stripe],
+    noise: f64,
+    rng: &mut Rng,
+) -> RgbImage {
+    RgbImage::from_fn(w, h, |x, y| {
+        let (xf, yf) = (x as f64, y as f64);
+        let mut v = background(xf, yf);
+        for s in stripes {
+            let d = (s.distance)(xf, yf);
+            let g = s.peak * (-0.5 * d * d / (s.s * s.s)).exp();
+            for (c, k) in v.iter_mut().zip(s.rgb) {
+                *c += k * g;
+            }
+        }
+        let mut px = [0u8; 3];
+        for (p, c) in px.iter_mut().zip(v) {
+            *p = (c + noise * rng.normal()).round().clamp(0.0, 255.0) as u8;
+        }
+        image::Rgb(px)
+    })
+}
+
+fn flat(v: f64) -> impl Fn(f64, f64) -> [f64; 3] {
+    move |_, _| [v; 3]
+}
+
+fn params_for(s: f64, lasers: &str) -> ExtractParams {
+    ExtractParams {
+        line_width_px: s * (8.0 * 2f64.ln()).sqrt(),
+        min_curve_length_px: 5.0,
+        lasers: LaserColour::preset(lasers).expect("preset"),
+        ..ExtractParams::default()
+    }
+}
+
+fn mean_std(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / n;
+    (m, var.sqrt())
+}
+
+/// Distances of all curve points (pixels) inside `margin` of the border to `truth`.
+fn errors(
+    curves: &[Curve],
+    w: u32,
+    h: u32,
+    margin: f32,
+    truth: &dyn Fn(f64, f64) -> f64,
+) -> Vec<f64> {
+    curves
+        .iter()
+        .flat_map(|c| c.points_px.iter())
+        .filter(|p| {
+            p[0] >= margin
+                && p[1] >= margin
+                && p[0] <= w as f32 - 1.0 - margin
+                && p[1] <= h as f32 - 1.0 - margin
+        })
+        .map(|p| truth(p[0] as f64, p[1] as f64))
+        .collect()
+}
+
+#[test]
+fn straight_stripes_are_unbiased_at_peak_to_noise_40() {
+    let (w, h) = (48u32, 48u32);
+    let (s, peak, bg) = (1.2, 200.0, 20.0);
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&params_for(s, "red"), &camera).expect("extractor");
+    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let mut rng = Rng(0x5eed_1234);
+    let mut all = Vec::new();
+    let mut worst_bias: f64 = 0.0;
+    let angles = 16;
+    let offsets = 5;
+    for ai in 0..angles {
+        let theta = std::f64::consts::PI * (ai as f64 + 0.37) / angles as f64;
+        let (nx, ny) = (-theta.sin(), theta.cos());
+        for oi in 0..offsets {
+            let off = oi as f64 / offsets as f64;
+            let (cx, cy) = (23.3 + off * nx, 23.6 + off * ny);
+            let dist = move |x: f64, y: f64| (x - cx) * nx + (y - cy) * ny;
+            let stripe = Stripe {
+                rgb: [1.0, 0.1, 0.15],
+                peak,
+                s,
+                distance: &dist,
+            };
+            let frame = render(w, h, &flat(bg), &[stripe], peak / 40.0, &mut rng);
+            let curves = ex.extract(&frame, &background);
+            let e = errors(&curves, w, h, 6.0, &dist);
+            // The stripe crosses the inner square: at least ~35 px of it must be found.
+            assert!(
+                e.len() >= 30,
+                "angle {theta:.2} offset {off}: only {} points",
+                e.len()
+            );
+            assert!(curves.iter().all(|c| c.laser == 0));
+            let (m, _) = mean_std(&e);
+            worst_bias = worst_bias.max(m.abs());
+            all.extend(e);
+        }
+    }
+    let (m, sd) = mean_std(&all);
+    eprintln!(
+        "straight: n={} bias={m:.4} std={sd:.4} worst config bias={worst_bias:.4}",
+        all.len()
+    );
+    assert!(m.abs() <= 0.02, "bias {m}");
+    assert!(sd <= 0.05, "std {sd}");
+    assert!(
+        worst_bias <= 0.05,
+        "worst per-configuration bias {worst_bias}"
+    );
+}
+
+/// Overexposed stripes clip to a flat top (as real ones do): no longer Gaussian, but
+/// symmetric, so the centre must stay close, given the width of the clipped profile.
+#[test]
+fn clipped_stripes_stay_close() {
+    let (w, h) = (48u32, 48u32);
+    // Peak 700 clipped at 255 − 20: a plateau where the Gaussian exceeds 235, i.e.
+    // |d| < 1.6 s; half maximum of the clipped profile at |d| = 1.98 s.
+    let (s, peak, bg) = (1.2, 700.0, 20.0);
+    let params = ExtractParams {
+        line_width_px: 2.0 * 1.98 * s,
+        ..params_for(s, "red")
+    };
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&params, &camera).expect("extractor");
+    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let mut rng = Rng(0xc11f_0001);
+    let mut all = Vec::new();
+    let mut worst_bias: f64 = 0.0;
+    for ai in 0..8 {
+        let theta = std::f64::consts::PI * (ai as f64 + 0.21) / 8.0;
+        let (nx, ny) = (-theta.sin(), theta.cos());
+        for oi in 0..4 {
+            let off = oi as f64 / 4.0;
+            let (cx, cy) = (23.1 + off * nx, 23.8 + off * ny);
+            let dist = move |x: f64, y: f64| (x - cx) * nx + (y - cy) * ny;
+            let stripe = Stripe {
+                rgb: [1.0, 0.1, 0.15],
+                peak,
+                s,
+                distance: &dist,
+            };
+            let frame = render(w, h, &flat(bg), &[stripe], 5.0, &mut rng);
+            let curves = ex.extract(&frame, &background);
+            let e = errors(&curves, w, h, 6.0, &dist);
+            assert!(
+                e.len() >= 30,
+                "angle {theta:.2} offset {off}: only {} points",
+                e.len()
+            );
+            let (m, _) = mean_std(&e);
+            worst_bias = worst_bias.max(m.abs());
+            all.extend(e);
+        }
+    }
+    let (m, sd) = mean_std(&all);
+    eprintln!(
+        "clipped: n={} bias={m:.4} std={sd:.4} worst config bias={worst_bias:.4}",
+        all.len()
+    );
+    assert!(m.abs() <= 0.02, "bias {m}");
+    assert!(sd <= 0.05, "std {sd}");
+    assert!(
+        worst_bias <= 0.05,
+        "worst per-configuration bias {worst_bias}"
+    );
+}
+
+#[test]
+fn circular_arc_follows_the_circle() {
+    let (w, h) = (96u32, 96u32);
+    let (s, peak, bg) = (1.2, 200.0, 20.0);
+    let (cx, cy, r) = (47.3, 46.8, 34.0);
+    let dist = move |x: f64, y: f64| (x - cx).hypot(y - cy) - r;
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&params_for(s, "red-green"), &camera).expect("extractor");
+    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let stripe = Stripe {
+        rgb: [0.1, 1.0, 0.2],
+        peak,
+        s,
+        distance: &dist,
+    };
+    let frame = render(w, h, &flat(bg), &[stripe], peak / 40.0, &mut Rng(77));
+    let curves = ex.extract(&frame, &background);
+    assert!(
+        curves.iter().all(|c| c.laser == 1),
+        "green stripe seen as red"
+    );
+    let e = errors(&curves, w, h, 4.0, &dist);
+    let (m, sd) = mean_std(&e);
+    let length: f64 = curves.iter().map(|c| c.length_px()).sum();
+    eprintln!(
+        "arc: n={} bias={m:.4} std={sd:.4} length={length:.1} curves={}",
+        e.len(),
+        curves.len()
+    );
+    // Smoothing a ring shifts its ridge inwards by about (s² + σ²) / 2r ≈ 0.04 px.
+    assert!(m.abs() <= 0.08, "bias {m}");
+    assert!(sd <= 0.06, "std {sd}");
+    let circumference = std::f64::consts::TAU * r;
+    assert!(
+        length >= 0.9 * circumference,
+        "length {length} of {circumference}"
+    );
+    assert!(curves.len() <= 3, "{} pieces", curves.len());
+}
+
+/// A textured grey background with coloured patches; the same texture under the stripe.
+fn texture(x: f64, y: f64) -> [f64; 3] {
+    let t = 90.0 + 50.0 * (0.9 * x).sin() * (0.6 * y).cos() + 30.0 * ((0.25 * x + 0.4 * y).sin());
+    let patch = if ((x / 12.0) as i32 + (y / 12.0) as i32) % 2 == 0 {
+        40.0
+    } else {
+        0.0
+    };
+    [t + patch, t, t - 0.5 * patch]
+}
+
+#[test]
+fn stripe_on_texture_with_background_subtracted() {
+    let (w, h) = (80u32, 64u32);
+    let (s, peak) = (1.3, 120.0);
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&params_for(s, "blue-green"), &camera).expect("extractor");
+    let mut rng = Rng(99);
+    let bgs: Vec<RgbImage> = (0..3)
+        .map(|_| render(w, h, &texture, &[], 2.0, &mut rng))
+        .collect();
+    let background = Background::median_of(&bgs.iter().collect::<Vec<_>>()).expect("median");
+    let theta: f64 = 0.3;
+    let (nx, ny) = (-theta.sin(), theta.cos());
+    let dist = move |x: f64, y: f64| (x - 40.2) * nx + (y - 31.7) * ny;
+    let stripe = Stripe {
+        rgb: [0.1, 0.3, 1.0],
+        peak,
+        s,
+        distance: &dist,
+    };
+    let frame = render(w, h, &texture, &[stripe], 2.0, &mut rng);
+    let curves = ex.extract(&frame, &background);
+    let e = errors(&curves, w, h, 0.0, &dist);
+    let (m, sd) = mean_std(&e);
+    eprintln!(
+        "texture: n={} bias={m:.4} std={sd:.4} curves={}",
+        e.len(),
+        curves.len()
+    );
+    assert!(e.len() >= 60, "{} points", e.len());
+    assert!(
+        e.iter().all(|d| d.abs() < 0.3),
+        "a point off the stripe: {e:?}"
+    );
+    assert!(curves.iter().all(|c| c.laser == 0));
+    assert!(m.abs() <= 0.03 && sd <= 0.06, "bias {m} std {sd}");
+    // Without the background the texture itself is full of ridges, but none of them
+    // has a laser's colour, so no tile away from the stripe activates.
+    let empty = Background::black(w, h);
+    let plain = render(w, h, &texture, &[], 2.0, &mut rng);
+    let none = ex.extract(&plain, &background);
+    assert!(
+        none.is_empty(),
+        "{} curves on a laser-free frame",
+        none.len()
+    );
+    let _ = ex.extract(&plain, &empty);
+}
+
+#[test]
+fn crossing_stripes_stay_apart() {
+    let (w, h) = (72u32, 72u32);
+    let (s, peak, bg) = (1.2, 180.0, 15.0);
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&params_for(s, "red-green"), &camera).expect("extractor");
+    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    // A cross rolled by 0.5 rad.
+    let roll: f64 = 0.5;
+    let (c0, s0) = (roll.cos(), roll.sin());
+    let d_red = move |x: f64, y: f64| -(x - 35.6) * s0 + (y - 36.2) * c0;
+    let d_green = move |x: f64, y: f64| (x - 35.6) * c0 + (y - 36.2) * s0;
+    let stripes = [
+        Stripe {
+            rgb: [1.0, 0.1, 0.1],
+            peak,
+            s,
+            distance: &d_red,
+        },
+        Stripe {
+            rgb: [0.1, 1.0, 0.1],
+            peak,
+            s,
+            distance: &d_green,
+        },
+    ];
+    let frame = render(w, h, &flat(bg), &stripes, peak / 40.0, &mut Rng(5));
+    let curves = ex.extract(&frame, &background);
+    for (laser, truth) in [(0u8, &d_red as &dyn Fn(f64, f64) -> f64), (1, &d_green)] {
+        let mine: Vec<Curve> = curves
+            .iter()
+            .filter(|c| c.laser == laser)
+            .cloned()
+            .collect();
+        let e = errors(&mine, w, h, 5.0, truth);
+        let (m, sd) = mean_std(&e);
+        eprintln!(
+            "cross laser {laser}: n={} bias={m:.4} std={sd:.4} curves={}",
+            e.len(),
+            mine.len()
+        );
+        assert!(e.len() >= 50, "laser {laser}: {} points", e.len());
+        assert!(
+            e.iter().all(|d| d.abs() < 0.25),
+            "laser {laser} strays: {e:?}"
+        );
+        // Both arms of the stripe, on either side of the crossing, are found.
+        let along = |p: &[f32; 2]| {
+            let (x, y) = (p[0] as f64 - 35.6, p[1] as f64 - 36.2);
+            if laser == 0 {
+                x * c0 + y * s0
+            } else {
+                -x * s0 + y * c0
+            }
+        };
+        let pts = mine.iter().flat_map(|c| c.points_px.iter());
+        let (lo, hi) = pts.fold((0.0f64, 0.0f64), |(lo, hi), p| {
+            (lo.min(along(p)), hi.max(along(p)))
+        });
+        assert!(lo < -20.0 && hi > 20.0, "laser {laser} spans {lo}..{hi}");
+    }
+}
+
+#[test]
+fn no_laser_gives_no_curves_and_wrong_size_is_an_error() {
+    let camera = Camera::with_fov(40, 30, 1.0);
+    let mut ex = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
+    let frame = RgbImage::from_pixel(40, 30, image::Rgb([90, 90, 90]));
+    let bg = Background::from_image(frame.clone());
+    assert!(ex.extract(&frame, &bg).is_empty());
+    let small = Background::black(20, 30);
+    assert!(matches!(
+        ex.try_extract(&frame, &small),
+        Err(ExtractError::Size { .. })
+    ));
+    assert!(ex.extract(&frame, &small).is_empty());
+}
+
+#[test]
+fn undistorted_points_and_polyline() {
+    // With distortion, `points` are the undistortion of `points_px` and the polyline is
+    // a subset of `points` within the tolerance.
+    let (w, h) = (64u32, 48u32);
+    let mut camera = Camera::with_fov(w, h, 1.2);
+    camera.distortion.k1 = -0.3;
+    camera.distortion.p1 = 0.002;
+    let mut ex = Extractor::new(&params_for(1.2, "red"), &camera).expect("extractor");
+    let dist = |x: f64, y: f64| (y - 20.4) + 0.2 * (x - 32.0);
+    let stripe = Stripe {
+        rgb: [1.0, 0.0, 0.0],
+        peak: 200.0,
+        s: 1.2,
+        distance: &dist,
+    };
+    let frame = render(w, h, &flat(10.0), &[stripe], 0.0, &mut Rng(3));
+    let curves = ex.extract(&frame, &Background::black(w, h));
+    assert_eq!(curves.len(), 1);
+    let c = &curves[0];
+    assert_eq!(c.points.len(), c.points_px.len());
+    assert_eq!(c.strength.len(), c.points_px.len());
+    for (n, p) in c.points.iter().zip(&c.points_px) {
+        let back = camera.pixel_from_normalized(n[0], n[1]);
+        assert!((back[0] - p[0] as f64).abs() < 1e-3 && (back[1] - p[1] as f64).abs() < 1e-3);
+    }
+    assert!(c.polyline.len() >= 2 && c.polyline.len() < c.points.len());
+    assert_eq!(c.polyline[0], c.points[0]);
+    // Strength is in grey levels: a 200-level stripe of the expected width reads ~200.
+    let (m, _) = mean_std(&c.strength.iter().map(|&s| s as f64).collect::<Vec<_>>());
+    assert!((m - 200.0).abs() < 30.0, "strength {m}");
+    // Round trip through the curves file.
+    let file = CurvesFile::new(w, h, &ex.params().lasers, curves.clone());
+    let back = CurvesFile::parse(&file.to_json(), Path::new("mem.json")).expect("parse");
+    assert_eq!(back.curves.len(), 1);
+    assert_eq!(back.curves[0].points_px, c.points_px);
+    let bad = file.to_json().replace("\"version\":1", "\"version\":9");
+    assert!(CurvesFile::parse(&bad, Path::new("x.json")).is_err());
+}
+
+#[test]
+fn params_from_toml_reject_unknown_keys() {
+    let p: ExtractParams =
+        toml::from_str("line_width_px = 6.0\nhigh_contrast = 50.0").expect("toml");
+    assert_eq!(p.line_width_px, 6.0);
+    assert_eq!(p.low_contrast, ExtractParams::default().low_contrast);
+    assert!(toml::from_str::<ExtractParams>("line_width = 6.0").is_err());
+    let camera = Camera::with_fov(10, 10, 1.0);
+    let bad = ExtractParams {
+        low_contrast: 50.0,
+        high_contrast: 10.0,
+        ..ExtractParams::default()
+    };
+    assert!(matches!(
+        Extractor::new(&bad, &camera),
+        Err(ExtractError::Params {
+            key: "low_contrast",
+            ..
+        })
+    ));
+}
+
+/// The real laser-on / laser-off pair of `fixtures/real/` (960x1280, a red line laser on
+/// a white bust). Regions were read off the images with an image viewer:
+/// - the stripe on the bust runs from (590, 50) at the top of the helmet crest down to
+///   (595, 1120) where the pedestal meets the turntable, always within x 505..600;
+/// - the laser also hits the white turntable rim at x ≈ 778, y 1215..1280 (real laser);
+/// - traps: the Rubik's cube (x 60..225, y 805..950, its top edge is red), the blue
+///   scanner body (x 690..910, y 700..1005), and the red turntable edges (x 70..135,
+///   y 1180..1240 and x 785..890, y 1220..1280).
+#[test]
+fn real_pair_finds_the_stripe_on_the_bust_only() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/real");
+    let load = |name: &str| image::open(dir.join(name)).expect(name).to_rgb8();
+    let (frame, off) = (load("laser.png"), load("laser_background.png"));
+    let camera = Camera::with_fov(frame.width(), frame.height(), 1.0);
+    // The stripe is saturated with a flat top ~8 px wide and ~12 px at half maximum.
+    let params = ExtractParams {
+        line_width_px: 10.0,
+        lasers: LaserColour::preset("red").expect("preset"),
+        ..ExtractParams::default()
+    };
+    let mut ex = Extractor::new(&params, &camera).expect("extractor");
+    let curves = ex.extract(&frame, &Background::from_image(off));
+    let in_box = |p: &[f32; 2], (x0, x1, y0, y1): (f32, f32, f32, f32)| {
+        (x0..=x1).contains(&p[0]) && (y0..=y1).contains(&p[1])
+    };
+    let stripe = (505.0, 600.0, 45.0, 1125.0);
+    let rim = (770.0, 785.0, 1210.0, 1280.0);
+    let traps = [
+        (60.0, 225.0, 805.0, 950.0),
+        (690.0, 910.0, 700.0, 1005.0),
+        (70.0, 135.0, 1180.0, 1240.0),
+        (785.0, 890.0, 1220.0, 1280.0),
+    ];
+    let points: Vec<[f32; 2]> = curves
+        .iter()
+        .flat_map(|c| c.points_px.iter().copied())
+        .collect();
+    for p in &points {
+        assert!(
+            in_box(p, stripe) || in_box(p, rim),
+            "point {p:?} off the stripe"
+        );
+        assert!(
+            !traps.iter().any(|t| in_box(p, *t)),
+            "point {p:?} in a trap"
+        );
+    }
+    // Most of the bust's height is covered: rows 50..1120 in 10-row bins.
+    let mut covered = [false; 107];
+    for p in points.iter().filter(|p| in_box(p, stripe)) {
+        let bin = ((p[1] - 50.0) / 10.0) as usize;
+        if let Some(c) = covered.get_mut(bin) {
+            *c = true;
+        }
+    }
+    let fraction = covered.iter().filter(|c| **c).count() as f64 / covered.len() as f64;
+    let length: f64 = curves.iter().map(|c| c.length_px()).sum();
+    assert!(
+        fraction >= 0.9,
+        "only {fraction:.2} of the bust's height covered"
+    );
+    assert!(length >= 1000.0, "total length {length}");
+    // The traps are real: without the background the red cube edge becomes a curve.
+    let lost = ex.extract(&frame, &Background::black(frame.width(), frame.height()));
+    let trapped = lost
+        .iter()
+        .flat_map(|c| c.points_px.iter())
+        .filter(|p| in_box(p, traps[0]))
+        .count();
+    assert!(
+        trapped > 20,
+        "cube trap not triggered without background ({trapped} points)"
+    );
+}
