@@ -1,1 +1,609 @@
-//! (placeholder, filled by its owner)
+//! The self-calibrating plane solver: laser planes from the crossings of their curves.
+//!
+//! Owns everything between the crossings of [`crate::intersect`] and one plane per
+//! curve; knows nothing of pixels, images or point clouds. A laser plane is
+//! `v · X = 1` in camera coordinates, `v ∈ R³`; a crossing of curves `i, j` at the
+//! image point `u = (x, y, 1)` lies on both planes, so `(v_i − v_j) · u = 0`.
+//!
+//! # Stages
+//! Each stage is a function of its own so the live daemon can rerun them one by one
+//! (add crossings, extend new curves from solved ones, re-solve the global set).
+//! 1. [`subset::select_global`]: a connected subset of at most `max_global_planes`
+//!    curves, each with at least `min_global_crossings` crossings inside it,
+//!    grown greedily cross by cross (a curve and its partner together).
+//! 2. [`nullspace::normal_matrix`] and [`nullspace::null_space`]: the stacked
+//!    system `A V = 0` through its normal matrix `AᵀA`, gauge shifted out; its null
+//!    vector `V0` gives all planes as `V = s V0 + (w, …, w)`, a 4-DOF family.
+//! 3. Robust rounds: each crossing's Sampson residual (the image distance, in
+//!    normalised units, from the line where its two planes meet); crossings beyond
+//!    `outlier_mad_k · σ`, `σ = 1.4826 · median |e|`, are dropped and the system
+//!    re-solved, reweighted by the Sampson gradient; curves with most of their
+//!    crossings dropped are rejected.
+//! 4. [`ortho::solve_orthogonality`]: the orthogonality of each cross's two planes
+//!    fixes `w` (and the focal scale `λ` if asked), leaving the one global scale.
+//! 5. [`extend::fit_plane`]: every other curve from its crossings with solved curves
+//!    (and its partner's orthogonality), in passes until no more can be solved.
+//! 6. Refinement: Gauss–Seidel rounds re-fitting each extended curve from all its
+//!    solved neighbours. The global subset stays fixed, which keeps the gauge and scale.
+//!
+//! # Conventions of the result
+//! Planes are returned in the *corrected* normalised coordinates `(x/λ, y/λ, 1)` of a
+//! camera whose focal length is `λ` ([`Solution::focal_scale`]) times the one used to
+//! normalise the crossings (`λ = 1` unless estimated): with `u = (x, y, 1)` as given,
+//! the inverse depth of a point on plane `v` is `v · (x/λ, y/λ, 1)`. The global scale
+//! is fixed so that the median inverse depth of the global crossings is 1 (median depth
+//! about 1) and depths are positive; the caller rescales to metric units.
+
+pub mod extend;
+pub mod nullspace;
+pub mod ortho;
+pub mod subset;
+pub mod synthetic;
+
+use crate::intersect::Crossing;
+use extend::{fit_plane, FitContext};
+use nalgebra::Vector3;
+use serde::Deserialize;
+use subset::{adjacency, select_global, Subset};
+
+/// Smallest noise level assumed for any residual: rounding, not measurement.
+const NOISE_FLOOR: f64 = 1e-9;
+/// Sampson residual scale from the median absolute residual of a Gaussian.
+const MAD_TO_SIGMA: f64 = 1.4826;
+
+/// Errors of the plane solver.
+#[derive(Debug, thiserror::Error)]
+pub enum SolveError {
+    #[error("invalid problem: {0}")]
+    InvalidProblem(String),
+    #[error("too few planes in the global subset: {found}, need at least {needed}")]
+    TooFewPlanes { found: usize, needed: usize },
+    #[error(
+        "too few crosses with both planes in the global subset: {found}, need at least {needed}"
+    )]
+    TooFewCrosses { found: usize, needed: usize },
+    #[error("degenerate system: {0}")]
+    Degenerate(&'static str),
+}
+
+/// Parameters of the plane solver.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SolveParams {
+    /// Largest number of planes in the global coplanarity solve (the paper used 400).
+    pub max_global_planes: usize,
+    /// Least number of crossings a curve needs with other solved curves to be extended
+    /// (three determine a plane).
+    pub min_crossings_per_plane: usize,
+    /// Least number of crossings a curve needs with other curves of the global subset:
+    /// more than three, so that a wrong one shows in the residuals.
+    pub min_global_crossings: usize,
+    /// Crossings at angles whose sine is below this are ignored.
+    pub min_sin_angle: f64,
+    /// A curve enters the global solve only if its crossings are off one image line by
+    /// at least this RMS distance (normalised units; [`subset::bend`]): crossings on one
+    /// line (a curve on a flat wall) leave its plane free to turn about its 3D line.
+    /// Must be well above the crossing noise; the default is about 5 px at f = 1000 px.
+    pub min_curve_bend: f64,
+    /// Outlier threshold in robust standard deviations (`1.4826 × MAD`) of the
+    /// crossings' Sampson residuals.
+    pub outlier_mad_k: f64,
+    /// Estimate the focal scale `λ` (true focal length over the one used) together
+    /// with the gauge; a flat port under water gives about 1.33.
+    pub estimate_focal: bool,
+    /// Largest number of reweighted solves of the global system per subset.
+    pub robust_rounds: usize,
+    /// Gauss–Seidel rounds re-fitting the extended planes from all their neighbours.
+    pub refine_rounds: usize,
+    /// A curve with more than this fraction of its crossings rejected is rejected.
+    pub max_outlier_fraction: f64,
+}
+
+impl Default for SolveParams {
+    fn default() -> Self {
+        Self {
+            max_global_planes: 400,
+            min_crossings_per_plane: 3,
+            min_global_crossings: 6,
+            min_sin_angle: 0.1,
+            min_curve_bend: 0.005,
+            outlier_mad_k: 4.0,
+            estimate_focal: false,
+            robust_rounds: 12,
+            refine_rounds: 2,
+            max_outlier_fraction: 0.5,
+        }
+    }
+}
+
+/// The crossings of a scan and which curves form a cross.
+#[derive(Clone, Copy, Debug)]
+pub struct Problem<'a> {
+    pub num_curves: usize,
+    pub crossings: &'a [Crossing],
+    /// Per curve: the other curve of its cross, if seen.
+    pub partner: &'a [Option<u32>],
+}
+
+/// The solved planes and what the solver judged on the way.
+#[derive(Clone, Debug)]
+pub struct Solution {
+    /// Per curve, its plane `v · X = 1` (see the module docs for coordinates and
+    /// scale); `None` when it could not be solved or was rejected.
+    pub planes: Vec<Option<Vector3<f64>>>,
+    /// Curves of the global coplanarity solve.
+    pub global: Vec<u32>,
+    /// True focal length over the one used to normalise (1 unless estimated).
+    pub focal_scale: f64,
+    pub focal_scale_std: Option<f64>,
+    /// Indices into the problem's crossings judged wrong (not those below the angle
+    /// threshold).
+    pub rejected_crossings: Vec<usize>,
+    /// Curves judged wrong (most of their crossings rejected).
+    pub rejected_curves: Vec<u32>,
+    /// Number of crossings ignored for their shallow angle.
+    pub shallow_crossings: usize,
+    /// RMS Sampson residual of the global inlier crossings, normalised image units.
+    pub residual_rms: f64,
+    /// Robust noise estimate of the Sampson residual, normalised image units.
+    pub sigma_img: f64,
+    /// RMS deviation from 90° of the crosses with both planes solved, degrees.
+    pub orthogonality_rms_deg: f64,
+    /// Smallest and second smallest eigenvalue of the gauge-fixed normal matrix,
+    /// relative to its mean eigenvalue: a clear gap means a well-determined subset.
+    pub null_space_eigenvalues: [f64; 2],
+}
+
+/// Outcome of the robust global coplanarity stage.
+#[derive(Clone, Debug)]
+pub struct GlobalCoplanarity {
+    /// The final subset; its `crossings` are the inliers among its curves.
+    pub subset: Subset,
+    pub null_space: nullspace::NullSpace,
+    /// Active crossings among the subset's curves judged outliers.
+    pub rejected_crossings: Vec<usize>,
+    pub sigma_img: f64,
+    pub residual_rms: f64,
+    pub rejected_curves: Vec<u32>,
+}
+
+fn median(mut x: Vec<f64>) -> Option<f64> {
+    if x.is_empty() {
+        return None;
+    }
+    let mid = x.len() / 2;
+    let (_, m, _) = x.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(*m)
+}
+
+/// Stages 1–3: subset, coplanarity null space, robust rounds.
+///
+/// Inner loop (iteratively reweighted least squares): solve the subset over every
+/// active crossing among its curves with weight `ω_k = g_k² / (1 + (e_k / (k σ))²)`,
+/// `g_k` the Sampson gradient factor and `e_k` the Sampson residual of the previous
+/// round (a Cauchy weight: wrong crossings fade out without ever removing a row, so the
+/// system keeps its rank), `σ = 1.4826 · median |e|`; until the set with `|e| ≤ k σ`
+/// and `σ` settle. Outer loop: crossings beyond `k σ` are outliers; curves with most of
+/// their crossings out are rejected; the subset is pruned again over the inliers (a
+/// curve whose remaining crossings lie on one line must leave) and re-solved if it
+/// changed.
+pub fn robust_global(
+    problem: &Problem,
+    active: &[bool],
+    params: &SolveParams,
+) -> Result<GlobalCoplanarity, SolveError> {
+    let n_curves = problem.num_curves;
+    let cr = problem.crossings;
+    let mut excluded = vec![false; n_curves];
+    let mut rejected_curves = Vec::new();
+    let mut inlier = active.to_vec();
+    let mut subset = select_global(
+        n_curves,
+        cr,
+        &inlier,
+        problem.partner,
+        &excluded,
+        &subset::SubsetLimits {
+            max_planes: params.max_global_planes,
+            min_crossings: params.min_global_crossings,
+            min_bend: params.min_curve_bend,
+        },
+    );
+    let mut prev: Vec<Option<Vector3<f64>>> = vec![None; n_curves];
+    let mut robust_weight = vec![1.0; cr.len()];
+    let k_out = params.outlier_mad_k;
+    for _outer in 0..8 {
+        let n = subset.curves.len();
+        if n < 4 {
+            return Err(SolveError::TooFewPlanes {
+                found: n,
+                needed: 4,
+            });
+        }
+        // Every active crossing among the subset's curves, so a crossing judged wrong
+        // early can come back.
+        let candidates = Subset::from_curves(n_curves, subset.curves.clone(), cr, active).crossings;
+        let mut last: Option<(nullspace::NullSpace, Vec<f64>, f64)> = None;
+        let mut last_hard: Option<Vec<bool>> = None;
+        for _round in 0..params.robust_rounds.max(1) {
+            let weights: Vec<f64> = candidates
+                .iter()
+                .map(|&k| {
+                    let c = &cr[k];
+                    let g2 = 1.0 / (1.0 + c.u[0] * c.u[0] + c.u[1] * c.u[1]);
+                    g2 * robust_weight[k]
+                })
+                .collect();
+            // Bound the weights: two nearly equal planes would dominate.
+            let cap = median(weights.iter().copied().filter(|w| *w > 0.0).collect()).unwrap_or(1.0)
+                * 100.0;
+            let weights: Vec<f64> = weights.iter().map(|w| w.min(cap)).collect();
+            let nm = nullspace::normal_matrix(n, &subset.local, cr, &candidates, &weights);
+            let ns = match nullspace::null_space(nm) {
+                Ok(ns) => ns,
+                // Down-weighting took the last off-line crossings of some curve: prune.
+                Err(_) if last.is_some() => break,
+                Err(e) => return Err(e),
+            };
+            let resid: Vec<f64> = candidates
+                .iter()
+                .map(|&k| {
+                    let c = &cr[k];
+                    match (subset.local[c.a as usize], subset.local[c.b as usize]) {
+                        (Some(i), Some(j)) => nullspace::sampson(&ns.v0[i], &ns.v0[j], c.u)
+                            .map_or(f64::INFINITY, |(e, _)| e.abs()),
+                        _ => f64::INFINITY,
+                    }
+                })
+                .collect();
+            let sigma = (MAD_TO_SIGMA * median(resid.clone()).unwrap_or(0.0)).max(NOISE_FLOOR);
+            for (&k, e) in candidates.iter().zip(&resid) {
+                let r = e / (k_out * sigma);
+                robust_weight[k] = 1.0 / (1.0 + r * r);
+            }
+            for (c, v) in prev.iter_mut().enumerate() {
+                *v = subset.local[c].map(|i| ns.v0[i]);
+            }
+            let hard: Vec<bool> = resid.iter().map(|e| *e <= k_out * sigma).collect();
+            let settled = match (&last, &last_hard) {
+                (Some((_, _, s_old)), Some(h)) => {
+                    *h == hard && (sigma - s_old).abs() <= 0.05 * s_old
+                }
+                _ => false,
+            };
+            // A curve left without enough well-spread inliers must leave before the
+            // next solve, or its plane would be free.
+            let mut inlier_points: Vec<Vec<[f64; 2]>> = vec![Vec::new(); n];
+            for (&k, &ok) in candidates.iter().zip(&hard) {
+                if ok {
+                    for c in [cr[k].a, cr[k].b] {
+                        if let Some(i) = subset.local[c as usize] {
+                            inlier_points[i].push(cr[k].u);
+                        }
+                    }
+                }
+            }
+            let needs_pruning = inlier_points.iter().any(|p| {
+                p.len() < params.min_global_crossings
+                    || subset::bend(p.iter().copied()) < params.min_curve_bend
+            });
+            last = Some((ns, resid, sigma));
+            last_hard = Some(hard);
+            if settled || needs_pruning {
+                break;
+            }
+        }
+        let Some((ns, resid, sigma)) = last else {
+            return Err(SolveError::Degenerate("no robust round ran"));
+        };
+        let threshold = k_out * sigma;
+        let mut changed = false;
+        for (&k, e) in candidates.iter().zip(&resid) {
+            let ok = *e <= threshold;
+            changed |= ok != inlier[k];
+            inlier[k] = ok;
+        }
+        let mut count = vec![(0usize, 0usize); n];
+        for (&k, e) in candidates.iter().zip(&resid) {
+            for c in [cr[k].a, cr[k].b] {
+                if let Some(i) = subset.local[c as usize] {
+                    count[i].0 += 1;
+                    count[i].1 += usize::from(*e > threshold);
+                }
+            }
+        }
+        for (i, &(tot, bad)) in count.iter().enumerate() {
+            if tot > 0 && bad as f64 > params.max_outlier_fraction * tot as f64 {
+                let c = subset.curves[i];
+                excluded[c as usize] = true;
+                rejected_curves.push(c);
+                changed = true;
+            }
+        }
+        let mut chosen = vec![false; n_curves];
+        for &c in &subset.curves {
+            chosen[c as usize] = !excluded[c as usize];
+        }
+        let adj = adjacency(n_curves, cr, &inlier);
+        let pruned = subset::prune(
+            n_curves,
+            &adj,
+            chosen,
+            params.min_global_crossings,
+            params.min_curve_bend,
+            cr,
+            &inlier,
+        );
+        if pruned.curves == subset.curves {
+            let sq: Vec<f64> = resid
+                .iter()
+                .filter(|e| **e <= threshold)
+                .map(|e| e * e)
+                .collect();
+            let residual_rms = (sq.iter().sum::<f64>() / sq.len().max(1) as f64).sqrt();
+            let rejected_crossings = candidates
+                .iter()
+                .zip(&resid)
+                .filter(|(_, e)| **e > threshold)
+                .map(|(k, _)| *k)
+                .collect();
+            return Ok(GlobalCoplanarity {
+                subset: pruned,
+                null_space: ns,
+                rejected_crossings,
+                sigma_img: sigma,
+                residual_rms,
+                rejected_curves,
+            });
+        }
+        let _ = changed;
+        subset = pruned;
+    }
+    Err(SolveError::Degenerate("the global subset did not settle"))
+}
+
+/// Stage 5 and 6: planes (in the given coordinates) for every curve not yet solved,
+/// from crossings with solved curves, then `refine_rounds` Gauss–Seidel rounds over
+/// the curves not in `fixed`. Returns the crossings and curves rejected on the way.
+pub fn extend_and_refine(
+    problem: &Problem,
+    active: &[bool],
+    planes: &mut [Option<Vector3<f64>>],
+    fixed: &[bool],
+    ctx: &FitContext,
+    refine_rounds: usize,
+) -> (Vec<usize>, Vec<u32>) {
+    let cr = problem.crossings;
+    let adj = adjacency(problem.num_curves, cr, active);
+    let mut rejected_crossings = Vec::new();
+    let mut rejected_curves = Vec::new();
+    let mut gave_up = vec![false; problem.num_curves];
+    let gather = |c: usize, planes: &[Option<Vector3<f64>>]| -> Vec<(usize, Vector3<f64>)> {
+        adj[c]
+            .iter()
+            .filter_map(|&(o, k)| planes[o as usize].map(|v| (k, v)))
+            .collect()
+    };
+    let partner_plane = |c: usize, planes: &[Option<Vector3<f64>>]| {
+        problem
+            .partner
+            .get(c)
+            .copied()
+            .flatten()
+            .and_then(|p| planes.get(p as usize).copied().flatten())
+    };
+    // Extension passes: most-connected curves first, solved planes used at once.
+    loop {
+        let mut order: Vec<(usize, usize)> = (0..problem.num_curves)
+            .filter(|&c| planes[c].is_none() && !gave_up[c])
+            .map(|c| (gather(c, planes).len(), c))
+            .filter(|&(m, _)| m >= 2)
+            .collect();
+        order.sort_unstable_by(|a, b| b.cmp(a));
+        let mut progress = false;
+        for (_, c) in order {
+            let known = gather(c, planes);
+            let partner = partner_plane(c, planes);
+            if known.len() < ctx.min_crossings && partner.is_none() {
+                continue;
+            }
+            match fit_plane(cr, &known, partner, ctx, None) {
+                Some(fit) if (fit.outliers.len() as f64) <= 0.5 * known.len() as f64 => {
+                    planes[c] = Some(fit.plane);
+                    progress = true;
+                }
+                Some(fit) => {
+                    gave_up[c] = true;
+                    rejected_curves.push(c as u32);
+                    rejected_crossings.extend(known.iter().map(|(k, _)| *k));
+                    let _ = fit;
+                }
+                None => {}
+            }
+        }
+        if !progress {
+            break;
+        }
+    }
+    for round in 0..refine_rounds {
+        for c in 0..problem.num_curves {
+            if fixed[c] || planes[c].is_none() {
+                continue;
+            }
+            let known = gather(c, planes);
+            let partner = partner_plane(c, planes);
+            if let Some(fit) = fit_plane(cr, &known, partner, ctx, planes[c]) {
+                planes[c] = Some(fit.plane);
+                if round + 1 == refine_rounds {
+                    rejected_crossings.extend(fit.outliers);
+                }
+            }
+        }
+    }
+    if refine_rounds == 0 {
+        // Without refinement, report the outliers of the extension fits.
+        for c in 0..problem.num_curves {
+            if fixed[c] || planes[c].is_none() {
+                continue;
+            }
+            if let Some(fit) = fit_plane(
+                cr,
+                &gather(c, planes),
+                partner_plane(c, planes),
+                ctx,
+                planes[c],
+            ) {
+                rejected_crossings.extend(fit.outliers);
+            }
+        }
+    }
+    (rejected_crossings, rejected_curves)
+}
+
+/// Solves the plane of every curve it can (see the module docs for the stages).
+pub fn solve(problem: &Problem, params: &SolveParams) -> Result<Solution, SolveError> {
+    let n_curves = problem.num_curves;
+    let cr = problem.crossings;
+    if problem.partner.len() != n_curves {
+        return Err(SolveError::InvalidProblem(format!(
+            "partner has {} entries for {} curves",
+            problem.partner.len(),
+            n_curves
+        )));
+    }
+    if let Some(c) = cr
+        .iter()
+        .find(|c| c.a as usize >= n_curves || c.b as usize >= n_curves)
+    {
+        return Err(SolveError::InvalidProblem(format!(
+            "crossing of curves {} and {} beyond {} curves",
+            c.a, c.b, n_curves
+        )));
+    }
+    let active: Vec<bool> = cr
+        .iter()
+        .map(|c| {
+            c.a != c.b && c.u.iter().all(|x| x.is_finite()) && c.sin_angle >= params.min_sin_angle
+        })
+        .collect();
+    let shallow_crossings = active.iter().filter(|&&a| !a).count();
+
+    let global = robust_global(problem, &active, params)?;
+    let subset = &global.subset;
+    let crosses: Vec<(usize, usize)> = subset
+        .curves
+        .iter()
+        .enumerate()
+        .filter_map(|(i, &c)| {
+            let p = problem.partner[c as usize]?;
+            let j = subset.local.get(p as usize).copied().flatten()?;
+            (i < j).then_some((i, j))
+        })
+        .collect();
+    let (orth, _bad_crosses) = ortho::solve_orthogonality(
+        &global.null_space.v0,
+        &crosses,
+        params.estimate_focal,
+        params.outlier_mad_k,
+        NOISE_FLOOR,
+    )?;
+
+    // Planes in the given coordinates; sign and scale from the global inlier crossings.
+    let mut given: Vec<Vector3<f64>> = global.null_space.v0.iter().map(|v| v + orth.w).collect();
+    let inv_depths: Vec<f64> = subset
+        .crossings
+        .iter()
+        .filter_map(|&k| {
+            let c = &cr[k];
+            let (i, j) = (subset.local[c.a as usize]?, subset.local[c.b as usize]?);
+            Some(0.5 * (given[i] + given[j]).dot(&Vector3::new(c.u[0], c.u[1], 1.0)))
+        })
+        .collect();
+    let m = median(inv_depths).unwrap_or(0.0);
+    if !(m.abs() > 0.0 && m.is_finite()) {
+        return Err(SolveError::Degenerate("planes through the camera centre"));
+    }
+    for v in &mut given {
+        *v /= m;
+    }
+    let mut planes: Vec<Option<Vector3<f64>>> = vec![None; n_curves];
+    let mut fixed = vec![false; n_curves];
+    for (i, &c) in subset.curves.iter().enumerate() {
+        planes[c as usize] = Some(given[i]);
+        fixed[c as usize] = true;
+    }
+    let mut rejected_crossings = global.rejected_crossings.clone();
+    let mut rejected_curves = global.rejected_curves.clone();
+    let mut ext_active = active.clone();
+    for &k in &rejected_crossings {
+        ext_active[k] = false;
+    }
+    for &c in &rejected_curves {
+        for (k, x) in cr.iter().enumerate() {
+            if x.a == c || x.b == c {
+                ext_active[k] = false;
+            }
+        }
+    }
+    let ctx = FitContext {
+        focal_scale: orth.focal_scale,
+        sigma_img: global.sigma_img,
+        sigma_ortho: orth.rms_rad.max(NOISE_FLOOR),
+        outlier_k: params.outlier_mad_k,
+        min_crossings: params.min_crossings_per_plane,
+        min_bend: params.min_curve_bend,
+    };
+    let (rc, rv) = extend_and_refine(
+        problem,
+        &ext_active,
+        &mut planes,
+        &fixed,
+        &ctx,
+        params.refine_rounds,
+    );
+    rejected_crossings.extend(rc);
+    rejected_crossings.sort_unstable();
+    rejected_crossings.dedup();
+    rejected_curves.extend(rv);
+    rejected_curves.sort_unstable();
+    rejected_curves.dedup();
+
+    // To the corrected coordinates (x/λ, y/λ, 1).
+    let lambda = orth.focal_scale;
+    for v in planes.iter_mut().flatten() {
+        v.x *= lambda;
+        v.y *= lambda;
+    }
+    let mut sum = 0.0;
+    let mut count = 0usize;
+    for (c, p) in problem.partner.iter().enumerate() {
+        if let (Some(p), Some(vi)) = (p, planes[c]) {
+            if (*p as usize) > c {
+                if let Some(Some(vj)) = planes.get(*p as usize) {
+                    let cos = vi.dot(vj) / (vi.norm() * vj.norm());
+                    sum += cos.clamp(-1.0, 1.0).asin().powi(2);
+                    count += 1;
+                }
+            }
+        }
+    }
+    Ok(Solution {
+        planes,
+        global: subset.curves.clone(),
+        focal_scale: lambda,
+        focal_scale_std: orth.focal_scale_std,
+        rejected_crossings,
+        rejected_curves,
+        shallow_crossings,
+        residual_rms: global.residual_rms,
+        sigma_img: global.sigma_img,
+        orthogonality_rms_deg: (sum / count.max(1) as f64).sqrt().to_degrees(),
+        null_space_eigenvalues: [
+            global.null_space.lambda_min,
+            global.null_space.lambda_second,
+        ],
+    })
+}
+
+#[cfg(test)]
+mod tests;

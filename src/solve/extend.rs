@@ -1,0 +1,283 @@
+//! Planes of curves outside the global subset, from their crossings with solved curves.
+//!
+//! A crossing of the unknown curve with a solved curve `j` at `u` gives
+//! `v · u = v_j · u = 1 / Z_j`, one linear equation in `v`. Rows are weighted first by
+//! `1 / (v_j · u)²` (relative depth), then by `1 / |(v − v_j)_{xy}|²` from the previous
+//! fit, so the residual is the Sampson image distance as in the global solve, divided by
+//! its noise `σ_img`. A solved partner `p` adds the soft orthogonality row
+//! `v · D² v_p / (|D v_p|²) = 0` (`D = diag(λ, λ, 1)`, the planes being nearly of equal
+//! norm), divided by the orthogonality noise `σ_ortho` (radians). At least three
+//! equations are needed and the 3×3 normal matrix must be well conditioned (crossings
+//! all on one image line leave the plane free to turn about the 3D line through them).
+//! Crossings whose Sampson residual exceeds `k σ_img` are dropped and the plane refit.
+
+use super::nullspace::sampson;
+use crate::intersect::Crossing;
+use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+
+/// What a plane fit needs to know besides the crossings.
+#[derive(Clone, Copy, Debug)]
+pub struct FitContext {
+    pub focal_scale: f64,
+    /// Noise of the Sampson residual (normalised image units).
+    pub sigma_img: f64,
+    /// Noise of the orthogonality of a cross (radians).
+    pub sigma_ortho: f64,
+    /// Outlier threshold in units of `sigma_img`.
+    pub outlier_k: f64,
+    pub min_crossings: usize,
+    /// Without a solved partner, the inlier crossings must be off one image line by
+    /// this much ([`super::subset::bend`]).
+    pub min_bend: f64,
+}
+
+/// A fitted plane and the crossings judged outliers.
+#[derive(Clone, Debug)]
+pub struct PlaneFit {
+    pub plane: Vector3<f64>,
+    pub inliers: usize,
+    pub outliers: Vec<usize>,
+}
+
+/// Fits the plane of one curve from `(crossing index, solved plane of the other curve)`
+/// and the solved partner plane, if any. `None` when under-determined.
+pub fn fit_plane(
+    crossings: &[Crossing],
+    known: &[(usize, Vector3<f64>)],
+    partner: Option<Vector3<f64>>,
+    ctx: &FitContext,
+    initial: Option<Vector3<f64>>,
+) -> Option<PlaneFit> {
+    let mut plane = initial.or_else(|| consensus_start(crossings, known, partner, ctx));
+    let mut inlier: Vec<bool> = match plane {
+        Some(v) => known
+            .iter()
+            .map(|(k, vj)| {
+                sampson(&v, vj, crossings[*k].u)
+                    .is_some_and(|(e, _)| e.abs() <= ctx.outlier_k * ctx.sigma_img)
+            })
+            .collect(),
+        None => vec![true; known.len()],
+    };
+    if inlier.iter().filter(|&&x| x).count() < 3 {
+        inlier.fill(true);
+    }
+    let d2 = {
+        let l2 = ctx.focal_scale * ctx.focal_scale;
+        Vector3::new(l2, l2, 1.0)
+    };
+    for round in 0..4 {
+        let mut a = Matrix3::zeros();
+        let mut b = Vector3::zeros();
+        let mut rows = 0usize;
+        for ((k, vj), &ok) in known.iter().zip(&inlier) {
+            if !ok {
+                continue;
+            }
+            let c = &crossings[*k];
+            let u = Vector3::new(c.u[0], c.u[1], 1.0);
+            let depth_inv = vj.dot(&u);
+            let w = match plane.and_then(|v| sampson(&v, vj, c.u)) {
+                Some((_, inv_g)) => inv_g * inv_g,
+                None if depth_inv.abs() > 0.0 => 1.0 / (depth_inv * depth_inv),
+                None => continue,
+            } / (ctx.sigma_img * ctx.sigma_img);
+            a += u * u.transpose() * w;
+            b += u * (depth_inv * w);
+            rows += 1;
+        }
+        if let Some(vp) = partner {
+            let n = vp.component_mul(&d2);
+            let scale = vp
+                .component_mul(&Vector3::new(ctx.focal_scale, ctx.focal_scale, 1.0))
+                .norm_squared();
+            if scale > 0.0 {
+                let row = n / scale;
+                a += row * row.transpose() / (ctx.sigma_ortho * ctx.sigma_ortho);
+                rows += 1;
+            }
+        }
+        if rows < 3 || rows.saturating_sub(usize::from(partner.is_some())) < 2 {
+            return None;
+        }
+        let eig = SymmetricEigen::new(a);
+        let (lo, hi) = eig
+            .eigenvalues
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(lo, hi), &l| {
+                (lo.min(l), hi.max(l))
+            });
+        if lo.is_nan() || lo <= 1e-10 * hi {
+            return None;
+        }
+        let v = a.cholesky()?.solve(&b);
+        plane = Some(v);
+        // Outliers judged with the current plane; stop when the set is stable.
+        let mut changed = false;
+        for ((k, vj), ok) in known.iter().zip(inlier.iter_mut()) {
+            let e = sampson(&v, vj, crossings[*k].u).map_or(f64::INFINITY, |(e, _)| e.abs());
+            let now = e <= ctx.outlier_k * ctx.sigma_img;
+            changed |= now != *ok;
+            *ok = now;
+        }
+        if !changed && round > 0 {
+            break;
+        }
+    }
+    let plane = plane?;
+    let inliers = inlier.iter().filter(|&&x| x).count();
+    if inliers < ctx.min_crossings.clamp(2, 3) {
+        return None;
+    }
+    if partner.is_none() {
+        let points = known
+            .iter()
+            .zip(&inlier)
+            .filter(|(_, &ok)| ok)
+            .map(|((k, _), _)| crossings[*k].u);
+        if super::subset::bend(points) < ctx.min_bend {
+            return None;
+        }
+    }
+    Some(PlaneFit {
+        plane,
+        inliers,
+        outliers: known
+            .iter()
+            .zip(&inlier)
+            .filter(|(_, &ok)| !ok)
+            .map(|((k, _), _)| *k)
+            .collect(),
+    })
+}
+
+/// Most trials of the consensus start per curve.
+const CONSENSUS_TRIALS: usize = 64;
+
+/// The plane through three crossings (`v · u_m = v_j · u_m`, m = 1..3) that agrees with
+/// the most crossings within `k σ_img` (ties: the smaller truncated squared error), over
+/// all triples or `CONSENSUS_TRIALS` drawn ones. A least-squares start would let a wrong
+/// crossing turn the plane about its 3D line, which crossings nearly on one image line
+/// barely resist. `None` with fewer than four crossings.
+fn consensus_start(
+    crossings: &[Crossing],
+    known: &[(usize, Vector3<f64>)],
+    partner: Option<Vector3<f64>>,
+    ctx: &FitContext,
+) -> Option<Vector3<f64>> {
+    let d = Vector3::new(ctx.focal_scale, ctx.focal_scale, 1.0);
+    let m = known.len();
+    if m < 4 {
+        return None;
+    }
+    let thr = ctx.outlier_k * ctx.sigma_img;
+    let row = |i: usize| {
+        let c = &crossings[known[i].0];
+        let u = Vector3::new(c.u[0], c.u[1], 1.0);
+        (u, known[i].1.dot(&u))
+    };
+    let total = m * (m - 1) * (m - 2) / 6;
+    let mut triples = Vec::new();
+    if total <= CONSENSUS_TRIALS {
+        for a in 0..m {
+            for b in a + 1..m {
+                for c in b + 1..m {
+                    triples.push([a, b, c]);
+                }
+            }
+        }
+    } else {
+        // A fixed sequence: the same problem always gives the same planes.
+        let mut state = 0x2545_F491_4F6C_DD1Du64 ^ m as u64;
+        let mut next = |n: usize| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state % n as u64) as usize
+        };
+        while triples.len() < CONSENSUS_TRIALS {
+            let t = [next(m), next(m), next(m)];
+            if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
+                triples.push(t);
+            }
+        }
+    }
+    let mut best: Option<(usize, f64, Vector3<f64>)> = None;
+    for t in triples {
+        let (r0, r1, r2) = (row(t[0]), row(t[1]), row(t[2]));
+        let a = Matrix3::from_rows(&[r0.0.transpose(), r1.0.transpose(), r2.0.transpose()]);
+        let Some(v) = a.lu().solve(&Vector3::new(r0.1, r1.1, r2.1)) else {
+            continue;
+        };
+        if !v.iter().all(|x| x.is_finite()) {
+            continue;
+        }
+        let (mut count, mut cost) = (0usize, 0.0);
+        for (k, vj) in known {
+            let e = sampson(&v, vj, crossings[*k].u).map_or(f64::INFINITY, |(e, _)| e.abs());
+            if e <= thr {
+                count += 1;
+            }
+            cost += e.min(thr).powi(2);
+        }
+        // The partner's orthogonality votes too: crossings all but one on a line fit
+        // a wrong plane through that one as well as the right one.
+        if let Some(vp) = partner {
+            let (n, np) = (v.component_mul(&d), vp.component_mul(&d));
+            let cos = n.dot(&np) / (n.norm() * np.norm());
+            if cos.abs() <= ctx.outlier_k * ctx.sigma_ortho {
+                count += 1;
+            }
+        }
+        if best
+            .as_ref()
+            .is_none_or(|b| count > b.0 || (count == b.0 && cost < b.1))
+        {
+            best = Some((count, cost, v));
+        }
+    }
+    best.filter(|b| b.0 >= 3).map(|b| b.2)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solve::synthetic::{analytic_crossings, random_scan, ScanSpec};
+
+    #[test]
+    fn a_plane_is_recovered_from_crossings_with_known_planes() {
+        let scan = random_scan(&ScanSpec {
+            num_crosses: 12,
+            seed: 21,
+            ..ScanSpec::default()
+        });
+        let cr = analytic_crossings(&scan.scene, &scan.planes, 0.05);
+        let target = 0u32;
+        let known: Vec<(usize, Vector3<f64>)> = cr
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| c.a == target && c.b != 1)
+            .map(|(k, c)| (k, scan.planes[c.b as usize]))
+            .collect();
+        assert!(known.len() >= 3);
+        let ctx = FitContext {
+            focal_scale: 1.0,
+            sigma_img: 1e-9,
+            sigma_ortho: 1e-9,
+            outlier_k: 4.0,
+            min_crossings: 3,
+            min_bend: 1e-3,
+        };
+        let fit = fit_plane(&cr, &known, Some(scan.planes[1]), &ctx, None).expect("fit");
+        let truth = scan.planes[0];
+        assert!(
+            (fit.plane - truth).norm() < 1e-9 * truth.norm(),
+            "{} vs {}",
+            fit.plane,
+            truth
+        );
+        assert!(fit.outliers.is_empty());
+        // Two crossings on one facet leave the plane free without its partner.
+        assert!(fit_plane(&cr, &known[..2], None, &ctx, None).is_none());
+    }
+}

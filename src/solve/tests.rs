@@ -1,0 +1,245 @@
+//! End-to-end tests of [`super::solve`] on synthetic scans with known planes.
+
+use super::synthetic::{analytic_crossings, random_scan, Rng, ScanSpec, SyntheticScan};
+use super::*;
+
+fn scan(num_crosses: usize, seed: u64) -> (SyntheticScan, Vec<Crossing>) {
+    let s = random_scan(&ScanSpec {
+        num_crosses,
+        seed,
+        ..ScanSpec::default()
+    });
+    let cr = analytic_crossings(&s.scene, &s.planes, 0.1);
+    (s, cr)
+}
+
+/// The global scale `k` with `estimated ≈ k · true` over the solved curves, and the
+/// worst relative plane error after it.
+fn plane_error(sol: &Solution, truth: &[Vector3<f64>]) -> (f64, f64, usize) {
+    // Median of the per-plane scales, so that one wrong plane shows as itself.
+    let mut ks: Vec<f64> = sol
+        .planes
+        .iter()
+        .zip(truth)
+        .filter_map(|(e, t)| e.map(|e| e.dot(t) / t.norm_squared()))
+        .collect();
+    ks.sort_by(f64::total_cmp);
+    let k = ks[ks.len() / 2];
+    let mut worst: f64 = 0.0;
+    let mut solved = 0;
+    for (e, t) in sol.planes.iter().zip(truth) {
+        if let Some(e) = e {
+            worst = worst.max((e - t * k).norm() / (t * k).norm());
+            solved += 1;
+        }
+    }
+    (k, worst, solved)
+}
+
+#[test]
+fn exact_crossings_give_the_planes_up_to_scale_for_global_and_extended_curves() {
+    let (s, cr) = scan(40, 31);
+    let problem = Problem {
+        num_curves: s.planes.len(),
+        crossings: &cr,
+        partner: &s.partner,
+    };
+    let params = SolveParams {
+        max_global_planes: 30,
+        ..SolveParams::default()
+    };
+    let sol = solve(&problem, &params).expect("solvable");
+    assert_eq!(sol.global.len(), 30);
+    let (k, worst, solved) = plane_error(&sol, &s.planes);
+    assert_eq!(solved, s.planes.len(), "every curve is solved");
+    assert!(worst < 1e-9, "worst relative plane error {worst}");
+    assert!(k > 0.0, "depths come out positive");
+    assert!(sol.rejected_crossings.is_empty() && sol.rejected_curves.is_empty());
+    assert!(sol.orthogonality_rms_deg < 1e-6);
+    // Median depth 1 over the global crossings.
+    let mut inv: Vec<f64> = cr
+        .iter()
+        .filter(|c| sol.global.contains(&c.a) && sol.global.contains(&c.b))
+        .filter_map(|c| sol.planes[c.a as usize].map(|v| v.dot(&Vector3::new(c.u[0], c.u[1], 1.0))))
+        .collect();
+    inv.sort_by(f64::total_cmp);
+    assert!((inv[inv.len() / 2] - 1.0).abs() < 0.05);
+}
+
+#[test]
+fn the_focal_scale_of_a_flat_port_is_recovered() {
+    let (s, mut cr) = scan(30, 32);
+    let lambda = 1.33;
+    // Crossings normalised with a focal length λ times too small: x_given = λ x_true.
+    for c in &mut cr {
+        c.u = [c.u[0] * lambda, c.u[1] * lambda];
+    }
+    let problem = Problem {
+        num_curves: s.planes.len(),
+        crossings: &cr,
+        partner: &s.partner,
+    };
+    let params = SolveParams {
+        estimate_focal: true,
+        ..SolveParams::default()
+    };
+    let sol = solve(&problem, &params).expect("solvable");
+    assert!(
+        (sol.focal_scale - lambda).abs() < 1e-7,
+        "λ = {}",
+        sol.focal_scale
+    );
+    assert!(sol.focal_scale_std.is_some_and(|d| d < 1e-6));
+    let (_, worst, solved) = plane_error(&sol, &s.planes);
+    assert_eq!(solved, s.planes.len());
+    assert!(worst < 1e-7, "worst relative plane error {worst}");
+}
+
+#[test]
+fn wrong_crossings_are_rejected_and_do_not_spoil_the_planes() {
+    let (s, mut cr) = scan(40, 33);
+    let n = s.planes.len();
+    let mut rng = Rng::new(99);
+    let n_wrong = cr.len() / 100;
+    let first_wrong = cr.len();
+    for _ in 0..n_wrong {
+        let a = rng.index(n) as u32;
+        let b = (a + 1 + rng.index(n - 1) as u32) % n as u32;
+        cr.push(Crossing {
+            a: a.min(b),
+            b: a.max(b),
+            u: [rng.uniform(-0.6, 0.6), rng.uniform(-0.45, 0.45)],
+            sin_angle: 0.5,
+        });
+    }
+    let problem = Problem {
+        num_curves: n,
+        crossings: &cr,
+        partner: &s.partner,
+    };
+    let params = SolveParams {
+        max_global_planes: 40,
+        ..SolveParams::default()
+    };
+    let sol = solve(&problem, &params).expect("solvable");
+    let (_, worst, solved) = plane_error(&sol, &s.planes);
+    assert!(solved >= n - 2, "solved {solved} of {n}");
+    assert!(worst < 1e-6, "worst relative plane error {worst}");
+    let wrong_rejected = sol
+        .rejected_crossings
+        .iter()
+        .filter(|&&k| k >= first_wrong)
+        .count();
+    let right_rejected = sol.rejected_crossings.len() - wrong_rejected;
+    assert!(
+        wrong_rejected as f64 >= 0.9 * n_wrong as f64,
+        "{wrong_rejected} of {n_wrong}"
+    );
+    assert!(
+        right_rejected * 100 < first_wrong,
+        "{right_rejected} good crossings rejected"
+    );
+}
+
+#[test]
+fn noisy_crossings_give_depths_within_half_a_percent() {
+    let (s, mut cr) = scan(60, 34);
+    // 0.2 px at a focal length of 1000 px.
+    let sigma = 0.2 / 1000.0;
+    let mut rng = Rng::new(5);
+    let exact: Vec<[f64; 2]> = cr.iter().map(|c| c.u).collect();
+    for c in &mut cr {
+        c.u[0] += sigma * rng.normal();
+        c.u[1] += sigma * rng.normal();
+    }
+    let problem = Problem {
+        num_curves: s.planes.len(),
+        crossings: &cr,
+        partner: &s.partner,
+    };
+    let params = SolveParams {
+        max_global_planes: 60,
+        ..SolveParams::default()
+    };
+    let sol = solve(&problem, &params).expect("solvable");
+    let (k, _, solved) = plane_error(&sol, &s.planes);
+    assert!(solved >= s.planes.len() - 2);
+    let mut worst: f64 = 0.0;
+    let mut sum2 = 0.0;
+    let mut m = 0;
+    for (c, u) in cr.iter().zip(&exact) {
+        let u = Vector3::new(u[0], u[1], 1.0);
+        for id in [c.a, c.b] {
+            if let Some(v) = sol.planes[id as usize] {
+                let rel = v.dot(&u) / (s.planes[id as usize] * k).dot(&u) - 1.0;
+                worst = worst.max(rel.abs());
+                sum2 += rel * rel;
+                m += 1;
+            }
+        }
+    }
+    let rms = (sum2 / m as f64).sqrt();
+    assert!(rms < 0.005, "rms relative depth error {rms}, worst {worst}");
+    // The robust noise estimate is close to the Sampson noise of the input.
+    assert!(
+        sol.sigma_img > 0.3 * sigma && sol.sigma_img < 3.0 * sigma,
+        "{}",
+        sol.sigma_img
+    );
+}
+
+#[test]
+fn a_disconnected_smaller_group_is_left_out() {
+    let (s, cr) = scan(30, 35);
+    // Crosses 0..20 and 20..30 never cross each other.
+    let group = |c: u32| c < 40;
+    let cr: Vec<Crossing> = cr
+        .into_iter()
+        .filter(|c| group(c.a) == group(c.b))
+        .collect();
+    let problem = Problem {
+        num_curves: s.planes.len(),
+        crossings: &cr,
+        partner: &s.partner,
+    };
+    let sol = solve(&problem, &SolveParams::default()).expect("solvable");
+    assert!(sol.global.iter().all(|&c| group(c)));
+    for (c, p) in sol.planes.iter().enumerate() {
+        assert_eq!(p.is_some(), group(c as u32), "curve {c}");
+    }
+    let (_, worst, _) = plane_error(&sol, &s.planes);
+    assert!(worst < 1e-9);
+}
+
+#[test]
+fn too_little_data_is_an_error_not_a_panic() {
+    let (s, cr) = scan(2, 36);
+    let problem = Problem {
+        num_curves: s.planes.len(),
+        crossings: &cr,
+        partner: &s.partner,
+    };
+    assert!(solve(&problem, &SolveParams::default()).is_err());
+    let bad = Problem {
+        num_curves: 1,
+        crossings: &cr,
+        partner: &[None],
+    };
+    assert!(matches!(
+        solve(&bad, &SolveParams::default()),
+        Err(SolveError::InvalidProblem(_))
+    ));
+}
+
+#[test]
+fn params_parse_from_toml_with_defaults_and_reject_unknown_keys() {
+    let p: SolveParams =
+        toml::from_str("max_global_planes = 100\nestimate_focal = true").expect("parse");
+    assert_eq!(p.max_global_planes, 100);
+    assert!(p.estimate_focal);
+    assert_eq!(
+        p.min_crossings_per_plane,
+        SolveParams::default().min_crossings_per_plane
+    );
+    assert!(toml::from_str::<SolveParams>("max_planes = 3").is_err());
+}
