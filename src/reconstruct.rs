@@ -23,22 +23,12 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
-use crate::cloud::{self, CurvePoints, ScaleMode, TriangulateParams, TriangulateStats};
-use crate::extract::{Background, Curve, ExtractParams, Extractor};
+use crate::cloud::{self, CurvePoints, ScaleMode, TriangulateStats};
+use crate::config::Config;
+use crate::extract::{Background, Curve, Extractor};
 use crate::intersect::{Crossing, SegmentIndex};
 use crate::ply::Cloud;
-use crate::solve::{self, Problem, SolveParams, Solution};
-
-/// Settings of the offline pipeline: the `[extract]`, `[solve]`, `[triangulate]` and
-/// `[background]` tables of `crossline.toml`.
-#[derive(Clone, Debug, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct ReconstructConfig {
-    pub background: BackgroundParams,
-    pub extract: ExtractParams,
-    pub solve: SolveParams,
-    pub triangulate: TriangulateParams,
-}
+use crate::solve::{self, Problem, Solution};
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -83,6 +73,8 @@ pub enum ReconstructError {
     Extract(#[from] crate::extract::ExtractError),
     #[error("solving the planes: {0}")]
     Solve(#[from] solve::SolveError),
+    #[error("internal error: {0}")]
+    Internal(&'static str),
     #[error("scale: {0}")]
     Scale(#[from] cloud::ScaleError),
 }
@@ -218,7 +210,7 @@ pub fn reconstruct_files(
     frames: &[PathBuf],
     background: Option<&Path>,
     camera: &Camera,
-    config: &ReconstructConfig,
+    config: &Config,
     scale: &ScaleMode,
     progress: &dyn Progress,
 ) -> Result<Reconstruction, ReconstructError> {
@@ -236,19 +228,24 @@ pub fn reconstruct_files(
                 .map(|p| decode(p, camera))
                 .collect::<Result<Vec<_>, _>>()?;
             let refs: Vec<&RgbImage> = images.iter().collect();
-            Background::median_of(&refs)
+            Background::median_of(&refs)?
         }
     };
     times.background_s = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
+    // Validate the parameters once; every worker thread then builds its own extractor
+    // (they own their scratch buffers), which cannot fail any more.
+    Extractor::new(&config.extract, camera)?;
     let done = std::sync::atomic::AtomicUsize::new(0);
     let per_frame: Vec<Vec<Curve>> = frames
         .par_iter()
         .map_init(
-            || Extractor::new(&config.extract, camera),
+            || Extractor::new(&config.extract, camera).ok(),
             |extractor, path| {
-                let extractor = extractor.as_mut().map_err(|e| e.clone())?;
+                let Some(extractor) = extractor.as_mut() else {
+                    return Err(ReconstructError::Internal("extractor construction failed"));
+                };
                 let img = decode(path, camera)?;
                 let curves = extractor.extract(&img, &background);
                 let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
@@ -269,7 +266,7 @@ pub fn reconstruct_files(
 pub fn reconstruct_curves(
     per_frame: Vec<Vec<Curve>>,
     camera: &Camera,
-    config: &ReconstructConfig,
+    config: &Config,
     scale: &ScaleMode,
     colour_source: Option<&RgbImage>,
 ) -> Result<Reconstruction, ReconstructError> {

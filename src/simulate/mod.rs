@@ -309,10 +309,7 @@ pub fn write_sim_dir(
         let p = out.join(name);
         std::fs::write(&p, text).map_err(io_err(&p))
     };
-    write(
-        "camera.yml",
-        &crate::camera_file::to_opencv_yaml(cam),
-    )?;
+    write("camera.yml", &crate::camera_file::to_opencv_yaml(cam))?;
     write(
         "camera_info.yaml",
         &crate::camera_file::to_ros_yaml(cam, "crossline_sim"),
@@ -361,7 +358,9 @@ pub fn write_sim_dir(
     })?;
     let lit_pixels = lit_img.as_raw().iter().filter(|&&v| v > 0).count();
     let p = out.join("lit.png");
-    lit_img.save(&p).map_err(|source| SimError::Image { path: p, source })?;
+    lit_img
+        .save(&p)
+        .map_err(|source| SimError::Image { path: p, source })?;
 
     let (points, colors) = sim.surface_points();
     let surface_pixels = points.len();

@@ -287,7 +287,9 @@ impl Simulator {
         frame_key: u64,
     ) {
         let w = self.camera.width as usize;
-        let mut rng = SplitMix64::new(mix64(frame_key ^ (y as u64).wrapping_mul(0xA24B_AED4_963E_E407)));
+        let mut rng = SplitMix64::new(mix64(
+            frame_key ^ (y as u64).wrapping_mul(0xA24B_AED4_963E_E407),
+        ));
         let sigma = self.params.noise_sigma as f32;
         let mut bits = 0u64;
         let mut left = 0u32;
@@ -361,7 +363,11 @@ impl Simulator {
         }
         // The lit side must be the side the camera sees.
         let to_c = l.centre - p;
-        let nrm = V3::new(px.normal[0] as f64, px.normal[1] as f64, px.normal[2] as f64);
+        let nrm = V3::new(
+            px.normal[0] as f64,
+            px.normal[1] as f64,
+            px.normal[2] as f64,
+        );
         let ndc = nrm.dot(&to_c);
         if ndc <= 0.0 {
             return false;
@@ -490,7 +496,8 @@ impl Simulator {
                     let jm = dp_dr * dr_duv;
                     let refl = scene.reflectance(&hit);
                     let shade = light.ambient
-                        * (light.flat_fraction + (1.0 - light.flat_fraction) * n.dot(&light_dir).max(0.0));
+                        * (light.flat_fraction
+                            + (1.0 - light.flat_fraction) * n.dot(&light_dir).max(0.0));
                     let range = hit.point.norm();
                     let amb = [0, 1, 2].map(|c| {
                         let a = shade * refl[c];

@@ -403,7 +403,8 @@ impl SceneSpec {
         c.fx = c.fx.map(|f| f * s);
         c.fy = c.fy.map(|f| f * s);
         c.cx = c.cx.map(|x| (x + 0.5) * s - 0.5);
-        c.cy = c.cy.map(|y| (y + 0.5) * s - 0.5 + 0.5 * (height as f64 - c.height as f64 * s));
+        c.cy =
+            c.cy.map(|y| (y + 0.5) * s - 0.5 + 0.5 * (height as f64 - c.height as f64 * s));
         c.width = width;
         c.height = height;
         self
@@ -425,9 +426,7 @@ impl SceneSpec {
             return Err(bad("[camera] `width` and `height` must be positive".into()));
         }
         if self.distance() <= 0.0 {
-            return Err(bad(
-                "[camera] `look_at` must differ from `position`".into()
-            ));
+            return Err(bad("[camera] `look_at` must differ from `position`".into()));
         }
         if c.hfov_deg.is_none() && c.fx.is_none() {
             return Err(bad(
@@ -1172,7 +1171,8 @@ mod tests {
         assert!(m.contains("my.toml:6"), "{m}");
         assert!(m.contains("focal"), "{m}");
 
-        let text = "name = \"t\"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 1, 0]\nhfov_deg = 60\n\
+        let text =
+            "name = \"t\"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 1, 0]\nhfov_deg = 60\n\
                     [[primitive]]\nshape = \"sphere\"\ncenter = [0, 2, 0]\nradius = \"big\"\n";
         let m = SceneSpec::from_toml_str(text, Path::new("my.toml"))
             .expect_err("wrong type")
@@ -1180,7 +1180,8 @@ mod tests {
         assert!(m.contains("my.toml:9"), "{m}");
         assert!(m.contains("radius"), "{m}");
 
-        let text = "name = \"t\"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 1, 0]\nhfov_deg = 60\n\
+        let text =
+            "name = \"t\"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 1, 0]\nhfov_deg = 60\n\
                     [[primitive]]\nshape = \"sphere\"\ncenter = [0, 2, 0]\n";
         let m = SceneSpec::from_toml_str(text, Path::new("my.toml"))
             .expect_err("missing radius")

@@ -67,7 +67,7 @@ pub enum SolveError {
 }
 
 /// Parameters of the plane solver.
-#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SolveParams {
     /// Largest number of planes in the global coplanarity solve (the paper used 400).
