@@ -49,10 +49,7 @@ pub fn write_pfm_to<W: Write>(
     let (wu, hu) = (width as usize, height as usize);
     if data.len() != wu * hu {
         return Err(PfmError::Format {
-            message: format!(
-                "{} samples given for a {width}x{height} image",
-                data.len()
-            ),
+            message: format!("{} samples given for a {width}x{height} image", data.len()),
         });
     }
     let io = |source| PfmError::Io {
@@ -186,7 +183,13 @@ mod tests {
     fn round_trip_keeps_values_nan_and_row_order() {
         let (w, h) = (5u32, 3u32);
         let data: Vec<f32> = (0..15)
-            .map(|i| if i == 7 { f32::NAN } else { i as f32 * 0.5 - 1.0 })
+            .map(|i| {
+                if i == 7 {
+                    f32::NAN
+                } else {
+                    i as f32 * 0.5 - 1.0
+                }
+            })
             .collect();
         let mut buf = Vec::new();
         write_pfm_to(&mut buf, w, h, &data).expect("write");

@@ -38,7 +38,7 @@
 //! | `wobble_period_frames` | float | 50 | period of the slowest wobble term |
 //! | `fan_deg` | float | 75 | full opening angle of each laser fan |
 //! | `colours` | [name, name] | ["red", "green"] | laser 0 and laser 1: `red`, `green`, `blue` |
-//! | `power` | float | 170 | stripe peak, grey levels, on white facing the laser at the scene distance (more saturates) |
+//! | `power` | float | 230 | stripe peak, grey levels, on white facing the laser at the scene distance (more saturates) |
 //! | `beam_half_thickness` | float | 0.0006 × distance | Gaussian 1σ half thickness of the sheet |
 //! | `sweep_period_frames` | float | 40 | period of the horizontal aim sweep (vertical: × golden ratio) |
 //! | `sweep_overscan` | float | 1.15 | aim sweep extent relative to the image (> 1: partly off the scene) |
@@ -53,8 +53,8 @@
 //! | `turbidity` | float | 1 | scales scattering, forward scatter and glow |
 //! | `absorption` | [r,g,b] | [0.40,0.06,0.03] | absorption per unit length (red strongest) |
 //! | `scattering` | [r,g,b] | [0.05,0.06,0.08] | scattering per unit length at turbidity 1 |
-//! | `backscatter` | float | 5 | glow grey level of a sheet seen face-on at the scene distance |
-//! | `forward_scatter` | float | 0.12 | fraction of stripe light blurred per unit path |
+//! | `backscatter` | float | 1.5 | glow grey level of a sheet seen face-on at the scene distance |
+//! | `forward_scatter` | float | 0.06 | fraction of stripe light blurred per unit path |
 //! | `forward_blur_mrad` | float | 4 | angular size of that blur |
 //! | `veil` | [r,g,b] | [8,40,48] | colour of the water column (distant haze) |
 //! | **`[[primitive]]`** | | | one table per surface |
@@ -309,10 +309,7 @@ pub fn write_sim_dir(
         let p = out.join(name);
         std::fs::write(&p, text).map_err(io_err(&p))
     };
-    write(
-        "camera.yml",
-        &crate::camera_file::to_opencv_yaml(cam),
-    )?;
+    write("camera.yml", &crate::camera_file::to_opencv_yaml(cam))?;
     write(
         "camera_info.yaml",
         &crate::camera_file::to_ros_yaml(cam, "crossline_sim"),
@@ -361,7 +358,9 @@ pub fn write_sim_dir(
     })?;
     let lit_pixels = lit_img.as_raw().iter().filter(|&&v| v > 0).count();
     let p = out.join("lit.png");
-    lit_img.save(&p).map_err(|source| SimError::Image { path: p, source })?;
+    lit_img
+        .save(&p)
+        .map_err(|source| SimError::Image { path: p, source })?;
 
     let (points, colors) = sim.surface_points();
     let surface_pixels = points.len();

@@ -163,7 +163,7 @@ fn default_colours() -> [LaserColour; 2] {
     [LaserColour::Red, LaserColour::Green]
 }
 fn default_power() -> f64 {
-    170.0
+    230.0
 }
 fn default_sweep_period() -> f64 {
     40.0
@@ -264,10 +264,10 @@ fn default_scattering() -> [f64; 3] {
     [0.05, 0.06, 0.08]
 }
 fn default_backscatter() -> f64 {
-    5.0
+    1.5
 }
 fn default_forward() -> f64 {
-    0.12
+    0.06
 }
 fn default_blur() -> f64 {
     4.0
@@ -403,7 +403,8 @@ impl SceneSpec {
         c.fx = c.fx.map(|f| f * s);
         c.fy = c.fy.map(|f| f * s);
         c.cx = c.cx.map(|x| (x + 0.5) * s - 0.5);
-        c.cy = c.cy.map(|y| (y + 0.5) * s - 0.5 + 0.5 * (height as f64 - c.height as f64 * s));
+        c.cy =
+            c.cy.map(|y| (y + 0.5) * s - 0.5 + 0.5 * (height as f64 - c.height as f64 * s));
         c.width = width;
         c.height = height;
         self
@@ -425,9 +426,7 @@ impl SceneSpec {
             return Err(bad("[camera] `width` and `height` must be positive".into()));
         }
         if self.distance() <= 0.0 {
-            return Err(bad(
-                "[camera] `look_at` must differ from `position`".into()
-            ));
+            return Err(bad("[camera] `look_at` must differ from `position`".into()));
         }
         if c.hfov_deg.is_none() && c.fx.is_none() {
             return Err(bad(
@@ -837,6 +836,20 @@ impl Scene {
         })
     }
 
+    /// Whether any surface lies on `origin + t * dir` for `0 < t < t_max` (shadow rays:
+    /// stops at the first blocker instead of finding the nearest).
+    pub fn occluded(&self, origin: &V3, dir: &V3, t_max: f64) -> bool {
+        let len = dir.norm();
+        if len == 0.0 || !len.is_finite() {
+            return false;
+        }
+        let d = dir / len;
+        let t_max = t_max * len;
+        self.geometry
+            .iter()
+            .any(|g| intersect(g, origin, &d, t_max).is_some())
+    }
+
     /// Albedo times texture at a hit, per channel, in `[0, 1]`.
     pub fn reflectance(&self, hit: &Hit) -> [f64; 3] {
         let m = &self.materials[hit.primitive];
@@ -1159,6 +1172,10 @@ mod tests {
         // From inside the big sphere: its far side.
         let h = s.cast(&V3::new(0.0, 0.0, 6.0), &V3::y()).expect("hit");
         assert!(close(&h.point, [0.0, 1.0, 6.0]));
+        // Shadow queries stop short of t_max.
+        assert!(s.occluded(&V3::zeros(), &V3::new(0.0, 0.0, 4.0), 0.7));
+        assert!(!s.occluded(&V3::zeros(), &V3::new(0.0, 0.0, 4.0), 0.6));
+        assert!(!s.occluded(&V3::new(0.0, 0.0, 8.0), &V3::z(), 100.0));
         // Misses.
         assert!(s.cast(&V3::zeros(), &V3::new(1.0, 0.0, 0.1)).is_none());
         assert!(s.cast(&V3::new(0.0, 0.0, 8.0), &V3::z()).is_none());
@@ -1172,7 +1189,8 @@ mod tests {
         assert!(m.contains("my.toml:6"), "{m}");
         assert!(m.contains("focal"), "{m}");
 
-        let text = "name = \"t\"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 1, 0]\nhfov_deg = 60\n\
+        let text =
+            "name = \"t\"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 1, 0]\nhfov_deg = 60\n\
                     [[primitive]]\nshape = \"sphere\"\ncenter = [0, 2, 0]\nradius = \"big\"\n";
         let m = SceneSpec::from_toml_str(text, Path::new("my.toml"))
             .expect_err("wrong type")
@@ -1180,7 +1198,8 @@ mod tests {
         assert!(m.contains("my.toml:9"), "{m}");
         assert!(m.contains("radius"), "{m}");
 
-        let text = "name = \"t\"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 1, 0]\nhfov_deg = 60\n\
+        let text =
+            "name = \"t\"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 1, 0]\nhfov_deg = 60\n\
                     [[primitive]]\nshape = \"sphere\"\ncenter = [0, 2, 0]\n";
         let m = SceneSpec::from_toml_str(text, Path::new("my.toml"))
             .expect_err("missing radius")

@@ -153,7 +153,10 @@ fn accept(
     if hit.normal.dot(&(centre - p)).signum() != hit.normal.dot(&-p).signum() {
         return None;
     }
-    if scene.cast(centre, &(p - centre)).is_some_and(|h| h.t < 1.0 - 1e-6) {
+    if scene
+        .cast(centre, &(p - centre))
+        .is_some_and(|h| h.t < 1.0 - 1e-6)
+    {
         return None;
     }
     // Only the flat wall, with no edge or other surface within 7 px.
@@ -166,7 +169,10 @@ fn accept(
             }
             let hp = h.point;
             let wq = hp - centre;
-            if scene.cast(centre, &(hp - centre)).is_some_and(|s| s.t < 1.0 - 1e-6) {
+            if scene
+                .cast(centre, &(hp - centre))
+                .is_some_and(|s| s.t < 1.0 - 1e-6)
+            {
                 return None;
             }
             if wq.dot(fan).abs() > wq.dot(axis) * tan_half {
@@ -208,7 +214,10 @@ fn builtin_scenes_parse_and_round_trip_through_toml() {
         .iter()
         .filter_map(|n| builtin_scene(n).map(|s| s.distance()))
         .collect();
-    assert!(d[0] > 3.0 && (2.0..3.5).contains(&d[1]) && d[2] < 0.8, "{d:?}");
+    assert!(
+        d[0] > 3.0 && (2.0..3.5).contains(&d[1]) && d[2] < 0.8,
+        "{d:?}"
+    );
 }
 
 #[test]
@@ -231,15 +240,25 @@ fn motion_keeps_orthogonal_planes_baseline_and_rolls() {
                 // The plane meets the scene near the aim: the axis lies in both planes.
             }
             let off = (p.centre - motion.rest_centre()).norm();
-            assert!(off <= wobble * (1.0 + 1e-12), "{name}: wobble {off} > {wobble}");
+            assert!(
+                off <= wobble * (1.0 + 1e-12),
+                "{name}: wobble {off} > {wobble}"
+            );
             let r = p.centre.norm();
-            assert!((r - baseline).abs() <= wobble * (1.0 + 1e-12), "{name}: |C| = {r}");
+            assert!(
+                (r - baseline).abs() <= wobble * (1.0 + 1e-12),
+                "{name}: |C| = {r}"
+            );
             roll_lo = roll_lo.min(p.roll_rad);
             roll_hi = roll_hi.max(p.roll_rad);
             // The measured roll agrees with the fan direction.
             let mut reference = V3::x() - p.axis * p.axis.x;
             reference.normalize_mut();
-            let measured = p.axis.cross(&reference).dot(&p.fan_dirs[0]).atan2(reference.dot(&p.fan_dirs[0]));
+            let measured = p
+                .axis
+                .cross(&reference)
+                .dot(&p.fan_dirs[0])
+                .atan2(reference.dot(&p.fan_dirs[0]));
             assert!((measured - p.roll_rad).abs() < 1e-9);
         }
         let span = (roll_hi - roll_lo).to_degrees();
@@ -284,11 +303,17 @@ fn frames_are_identical_on_one_and_two_threads() {
     assert_eq!(one, two);
     // Noise differs between frames and from the background.
     assert_ne!(one[0], one[3]);
-    let other_seed = Simulator::new(&spec, &SimParams { seed: 8, ..params.clone() })
-        .expect("sim")
-        .render_frame(0)
-        .0
-        .into_raw();
+    let other_seed = Simulator::new(
+        &spec,
+        &SimParams {
+            seed: 8,
+            ..params.clone()
+        },
+    )
+    .expect("sim")
+    .render_frame(0)
+    .0
+    .into_raw();
     assert_ne!(one[0], other_seed);
 }
 
@@ -326,7 +351,10 @@ fn stripe_centres_lie_on_the_true_curves() {
     }
     eprintln!("stripe centres: worst offset {worst:.4} px over {checked} samples");
     assert!(checked > 100, "only {checked} curve samples");
-    assert!(worst < 0.05, "worst stripe centre offset {worst} px over {checked} samples");
+    assert!(
+        worst < 0.05,
+        "worst stripe centre offset {worst} px over {checked} samples"
+    );
 }
 
 #[test]
@@ -377,7 +405,10 @@ fn water_dims_red_and_adds_glow_in_front_of_surfaces() {
     // Red laser light is attenuated much more than green.
     let red_ratio = sum(&fw, &bw, 0) / sum(&fa, &ba, 0);
     let green_ratio = sum(&fw, &bw, 1) / sum(&fa, &ba, 1);
-    assert!(red_ratio < green_ratio, "red {red_ratio} green {green_ratio}");
+    assert!(
+        red_ratio < green_ratio,
+        "red {red_ratio} green {green_ratio}"
+    );
     // Glow: in water, many more pixels brighten than the stripes cover.
     let count = |f: &RgbImage, b: &RgbImage| {
         f.pixels()
@@ -419,7 +450,10 @@ fn sim_dir_round_trip() {
     assert_eq!(loaded.truth.frames.len(), 4);
     assert_eq!(loaded.truth.frames[2], sim.frame_truth(2));
     assert_eq!(&loaded.camera, sim.camera());
-    assert_eq!(loaded.lit.iter().filter(|&&l| l).count(), summary.lit_pixels);
+    assert_eq!(
+        loaded.lit.iter().filter(|&&l| l).count(),
+        summary.lit_pixels
+    );
     assert_eq!(loaded.depth.len(), 80 * 60);
     let expect = sim.depth();
     for (a, b) in loaded.depth.iter().zip(&expect) {
