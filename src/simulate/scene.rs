@@ -377,7 +377,19 @@ impl SceneSpec {
                 message: format!("column {col}: {}{at}", e.message()),
             }
         })?;
-        spec.validate(origin)?;
+        if let Err((section, message)) = spec.validate() {
+            return Err(match section_line(text, section) {
+                Some(line) => SimError::Toml {
+                    path: origin.to_path_buf(),
+                    line,
+                    message,
+                },
+                None => SimError::Invalid {
+                    path: origin.to_path_buf(),
+                    message,
+                },
+            });
+        }
         Ok(spec)
     }
 
@@ -410,10 +422,16 @@ impl SceneSpec {
         self
     }
 
-    fn validate(&self, origin: &Path) -> Result<(), SimError> {
-        let bad = |message: String| SimError::Invalid {
-            path: origin.to_path_buf(),
-            message,
+    /// Checks what serde cannot: required keys per shape, ranges, consistency. The error
+    /// names the table it is about, so the caller can give its line.
+    fn validate(&self) -> Result<(), (Section, String)> {
+        let bad = |message: String| {
+            let section = match message.split_once(']') {
+                Some(("[camera", _)) => Section::Table("[camera]"),
+                Some(("[projector", _)) => Section::Table("[projector]"),
+                _ => Section::Top,
+            };
+            (section, message)
         };
         if self.version != SCENE_VERSION {
             return Err(bad(format!(
@@ -475,11 +493,14 @@ impl SceneSpec {
         }
         for (i, prim) in self.primitives.iter().enumerate() {
             validate_primitive(prim).map_err(|m| {
-                bad(format!(
-                    "[[primitive]] #{} ({:?}): {m}",
-                    i + 1,
-                    prim.name.as_deref().unwrap_or(shape_name(prim.shape))
-                ))
+                (
+                    Section::Primitive(i),
+                    format!(
+                        "[[primitive]] #{} ({:?}): {m}",
+                        i + 1,
+                        prim.name.as_deref().unwrap_or(shape_name(prim.shape))
+                    ),
+                )
             })?;
         }
         Ok(())
@@ -575,6 +596,29 @@ fn validate_primitive(p: &PrimitiveSpec) -> Result<(), String> {
         }
     }
     Ok(())
+}
+
+/// Where in the file a validation error belongs.
+#[derive(Clone, Copy, Debug)]
+enum Section {
+    Top,
+    Table(&'static str),
+    /// The n-th `[[primitive]]` (0-based).
+    Primitive(usize),
+}
+
+/// 1-based line of a section's header in the scene text.
+fn section_line(text: &str, section: Section) -> Option<usize> {
+    let (header, nth) = match section {
+        Section::Top => return None,
+        Section::Table(h) => (h, 0),
+        Section::Primitive(i) => ("[[primitive]]", i),
+    };
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| l.trim() == header)
+        .nth(nth)
+        .map(|(i, _)| i + 1)
 }
 
 /// 1-based line, 1-based column and text of the line holding byte `offset`.
@@ -1204,7 +1248,7 @@ mod tests {
         let m = SceneSpec::from_toml_str(text, Path::new("my.toml"))
             .expect_err("missing radius")
             .to_string();
-        assert!(m.contains("radius") && m.contains("my.toml"), "{m}");
+        assert!(m.contains("radius") && m.contains("my.toml:6"), "{m}");
     }
 
     #[test]

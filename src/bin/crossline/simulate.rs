@@ -90,7 +90,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                     BUILTIN_SCENES.join(", ")
                 );
             }
-            load_scene_file(&path).with_context(|| format!("loading scene {}", path.display()))?
+            load_scene_file(&path).context("loading the scene")?
         }
     };
     if args.width.is_some() || args.height.is_some() {
