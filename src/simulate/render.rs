@@ -147,7 +147,21 @@ pub struct Simulator {
 const GAUSS_BITS: u32 = 12;
 
 impl Simulator {
+    /// Validates the spec (it may have been built or changed in code) and ray-casts the
+    /// fixed view.
     pub fn new(spec: &SceneSpec, params: &SimParams) -> Result<Simulator, SimError> {
+        if let Err((_, message)) = spec.validate() {
+            return Err(SimError::Invalid {
+                path: spec.name.clone().into(),
+                message,
+            });
+        }
+        if !(params.noise_sigma >= 0.0 && params.noise_sigma.is_finite()) {
+            return Err(SimError::Invalid {
+                path: spec.name.clone().into(),
+                message: format!("noise sigma {} must be >= 0", params.noise_sigma),
+            });
+        }
         let camera = camera_from_spec(&spec.camera);
         let scene = Scene::from_spec(spec);
         let motion = Motion::new(spec, params.seed);
@@ -262,8 +276,8 @@ impl Simulator {
     }
 
     /// Renders frame `index` into `img` (resized if needed). When `lit` is given
-    /// (`width * height` entries), pixels whose centre lies within 0.5 px of an
-    /// unshadowed stripe centre line inside the fan are set to 255.
+    /// (`width * height` entries; ignored otherwise), pixels whose centre lies within
+    /// 0.5 px of an unshadowed stripe centre line inside the fan are set to 255.
     pub fn render_frame_into(
         &self,
         index: usize,
@@ -310,7 +324,7 @@ impl Simulator {
         }
         let frame_key = mix64(self.params.seed ^ mix64(key));
         let buf: &mut [u8] = img;
-        match lit {
+        match lit.filter(|l| l.len() == w * h) {
             Some(lit) => buf
                 .par_chunks_mut(3 * w)
                 .zip(lit.par_chunks_mut(w))
@@ -386,8 +400,8 @@ impl Simulator {
         let window2 = 16.0 * self.beam2 + hot.jf2 as f64 * (16.0 * self.psf2 + 9.0 * halo2);
         let d_approx =
             l.n.x * hot.p[0] as f64 + l.n.y * hot.p[1] as f64 + l.n.z * hot.p[2] as f64 - l.h;
-        let slack = 1e-6 * hot.range as f64;
-        if d_approx.abs() > window2.sqrt() + slack {
+        let beyond = d_approx.abs() - 1e-6 * hot.range as f64;
+        if beyond > 0.0 && beyond * beyond > window2 {
             return false;
         }
         let px = &self.pixels[i];

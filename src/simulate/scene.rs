@@ -424,7 +424,7 @@ impl SceneSpec {
 
     /// Checks what serde cannot: required keys per shape, ranges, consistency. The error
     /// names the table it is about, so the caller can give its line.
-    fn validate(&self) -> Result<(), (Section, String)> {
+    pub(crate) fn validate(&self) -> Result<(), (Section, String)> {
         let bad = |message: String| {
             let section = match message.split_once(']') {
                 Some(("[camera", _)) => Section::Table("[camera]"),
@@ -600,7 +600,7 @@ fn validate_primitive(p: &PrimitiveSpec) -> Result<(), String> {
 
 /// Where in the file a validation error belongs.
 #[derive(Clone, Copy, Debug)]
-enum Section {
+pub(crate) enum Section {
     Top,
     Table(&'static str),
     /// The n-th `[[primitive]]` (0-based).
