@@ -6,6 +6,15 @@
 //! `I ∝ exp(−d² / (2 (b² + g² σ_psf²)))`, where `b` is the beam half thickness and `g`
 //! the length of `∇_pixel d` (metres per pixel along the curve normal). In pixel units
 //! that is a profile of variance `(b/g)² + σ_psf²` centred exactly on the curve `d = 0`.
+//! Only pixels within 4σ are shaded: fan test, a shadow ray to the projector, Lambert
+//! incidence, inverse-square fall-off, albedo × texture.
+//!
+//! Under water: per-channel attenuation `exp(-c (|P - C| + |P|))`; forward scatter mixes
+//! in a wider, dimmer copy of the same profile (blur `forward_blur_mrad`), so centres stay
+//! exact; backscatter adds glow where a camera ray crosses a sheet in front of its
+//! surface (`∝ 1/|cos|`, attenuated, clipped), up to where the sheet first meets a
+//! surface (a per-frame table of 4096 sheet rays). Glow is not shadowed by objects
+//! between the sheet and the camera other than the pixel's own surface.
 
 use image::RgbImage;
 use nalgebra::{Matrix2, Matrix3x2, Vector3};
@@ -75,7 +84,12 @@ struct LaserFrame {
     axis: V3,
     fan_dir: V3,
     colour: [f64; 3],
+    /// Under water: how far the sheet's light travels before it meets a surface, in
+    /// `REACH_BINS` bins of `tan(angle in the fan)`; the water behind is dark.
+    reach: Vec<f64>,
 }
+
+const REACH_BINS: usize = 4096;
 
 struct Water {
     /// Attenuation per unit length, per channel.
@@ -292,6 +306,10 @@ impl Simulator {
             axis: pose.axis,
             fan_dir: pose.fan_dirs[k],
             colour: self.colours[k].map(|c| c * self.power),
+            reach: match self.water {
+                Some(_) => self.sheet_reach(&pose, k),
+                None => Vec::new(),
+            },
         });
         self.render(img, Some(&lasers), index as u64, lit);
         FrameTruth {
@@ -459,6 +477,21 @@ impl Simulator {
         d2 < 0.25 * g2
     }
 
+    /// Distance from the projector to the first surface along laser `k`'s sheet, per
+    /// bin of `tan` of the fan angle (infinite where the sheet leaves the scene).
+    fn sheet_reach(&self, pose: &ProjectorPose, k: usize) -> Vec<f64> {
+        let step = 2.0 * self.tan_half_fan / REACH_BINS as f64;
+        (0..REACH_BINS)
+            .map(|i| {
+                let t = -self.tan_half_fan + (i as f64 + 0.5) * step;
+                let dir = pose.axis + pose.fan_dirs[k] * t;
+                self.scene
+                    .cast(&pose.centre, &dir)
+                    .map_or(f64::INFINITY, |h| (h.point - pose.centre).norm())
+            })
+            .collect()
+    }
+
     /// Backscatter: the sheet lights the water column in front of the surface.
     #[inline]
     fn add_glow(&self, px: &Hot, l: &LaserFrame, water: &Water, v: &mut [f64; 3]) {
@@ -476,11 +509,21 @@ impl Simulator {
         let x = p * lambda;
         let w = x - l.centre;
         let wa = w.dot(&l.axis);
-        if wa <= 0.0 || w.dot(&l.fan_dir).abs() > wa * self.tan_half_fan {
+        let wf = w.dot(&l.fan_dir);
+        if wa <= 0.0 || wf.abs() > wa * self.tan_half_fan {
             return;
         }
         let range = px.range as f64;
         let dist = w.norm();
+        // Sheet light stops at the first surface it meets (the sheet's own shadow).
+        let bin = ((wf / wa + self.tan_half_fan) / (2.0 * self.tan_half_fan) * REACH_BINS as f64)
+            as usize;
+        if l.reach
+            .get(bin.min(REACH_BINS - 1))
+            .is_some_and(|&r| dist > r)
+        {
+            return;
+        }
         // Path length through the sheet ∝ 1/|cos|, bounded where the ray runs along it.
         let path = (range / np.abs()).min(6.0);
         let g = water.backscatter * (self.reference_distance / dist) * path / self.power;
