@@ -591,3 +591,72 @@ fn gaussian_noise_has_the_requested_sigma() {
     assert!(mean.abs() < 0.15, "mean {mean}");
     assert!((sigma - 4.0).abs() < 0.15, "sigma {sigma}");
 }
+
+#[test]
+fn glow_appears_exactly_where_a_camera_ray_crosses_a_lit_sheet() {
+    let mut spec = stripe_scene("").with_resolution(160, 120);
+    spec.medium = Medium::Water;
+    spec.water.backscatter = 100.0;
+    let with = Simulator::new(&spec, &quiet()).expect("sim");
+    spec.water.backscatter = 0.0;
+    let without = Simulator::new(&spec, &quiet()).expect("sim");
+    let cam = with.camera().clone();
+    let scene = with.scene();
+    let tan_half = (0.5 * spec.projector.fan_deg.to_radians()).tan();
+    let (mut glowing, mut dark) = (0, 0);
+    for frame in 0..16 {
+        let (a, truth) = with.render_frame(frame);
+        let (b, _) = without.render_frame(frame);
+        let centre = V3::from(truth.projector_centre);
+        let axis = V3::from(truth.axis);
+        for y in (0..cam.height).step_by(3) {
+            'pixel: for x in (0..cam.width).step_by(3) {
+                let ray = cam.ray_from_pixel(x as f64, y as f64).expect("ray");
+                let Some(hit) = scene.cast(&V3::zeros(), &ray) else {
+                    continue;
+                };
+                let mut predicted = false;
+                for k in 0..2 {
+                    // The camera ray meets sheet k at X = λ P (v·X = 1).
+                    let lambda = 1.0 / V3::from(truth.planes[k]).dot(&hit.point);
+                    if (lambda - 1.0).abs() < 0.02 || lambda.abs() < 0.02 {
+                        continue 'pixel;
+                    }
+                    if !(lambda > 0.0 && lambda < 1.0) {
+                        continue;
+                    }
+                    let w = hit.point * lambda - centre;
+                    let ratio = w.dot(&V3::from(truth.fan_dirs[k])).abs() / w.dot(&axis);
+                    if w.dot(&axis) <= 0.0 {
+                        continue;
+                    }
+                    if (ratio - tan_half).abs() < 0.02 {
+                        continue 'pixel;
+                    }
+                    if ratio > tan_half {
+                        continue;
+                    }
+                    // Lit unless the sheet met a surface before X.
+                    match scene.cast(&centre, &w) {
+                        Some(h) if (h.t - 1.0).abs() < 0.02 => continue 'pixel,
+                        Some(h) if h.t < 1.0 => {}
+                        _ => predicted = true,
+                    }
+                }
+                let (p, q) = (a.get_pixel(x, y), b.get_pixel(x, y));
+                let diff: i32 = (0..3).map(|c| p[c] as i32 - q[c] as i32).sum();
+                if predicted {
+                    assert!(diff > 0, "no glow at ({x}, {y}) in frame {frame}");
+                    glowing += 1;
+                } else {
+                    assert_eq!(diff, 0, "glow at ({x}, {y}) in frame {frame}");
+                    dark += 1;
+                }
+            }
+        }
+    }
+    assert!(
+        glowing > 100 && dark > 100,
+        "{glowing} glowing, {dark} dark"
+    );
+}
