@@ -95,9 +95,9 @@
 //!
 //! `truth.json` fields: `version` (1), `scene`, `seed`, `medium`, `turbidity`,
 //! `noise_sigma`, `camera` ([`Camera`]), `lasers` (`[{name, rgb}]`, laser 0 first),
-//! `fan_deg`, `beam_half_thickness`, `frames` (`[{index, projector_centre, planes,
-//! axis, roll_rad, fan_dirs}]`; `planes[k] = [a, b, c]` with `aX + bY + cZ = 1` in
-//! camera coordinates).
+//! `fan_deg`, `beam_half_thickness`, `projector_rest_centre`, `wobble`, `frames`
+//! (`[{index, projector_centre, planes, axis, roll_rad, fan_dirs}]`; `planes[k] =
+//! [a, b, c]` with `aX + bY + cZ = 1` in camera coordinates).
 
 pub mod motion;
 pub mod render;
@@ -194,6 +194,10 @@ pub struct Truth {
     pub lasers: Vec<LaserTruth>,
     pub fan_deg: f64,
     pub beam_half_thickness: f64,
+    /// Rest position of the projector centre (camera coordinates) and the radius it
+    /// wobbles within.
+    pub projector_rest_centre: [f64; 3],
+    pub wobble: f64,
     pub frames: Vec<FrameTruth>,
 }
 
@@ -267,6 +271,8 @@ pub fn truth_of(sim: &Simulator, frames: usize) -> Truth {
             .collect(),
         fan_deg: spec.projector.fan_deg,
         beam_half_thickness: sim.beam_half_thickness(),
+        projector_rest_centre: sim.motion().rest_centre().into(),
+        wobble: sim.motion().wobble(),
         frames: (0..frames).map(|i| sim.frame_truth(i)).collect(),
     }
 }
