@@ -146,7 +146,6 @@ pub struct Simulator {
     scene: Scene,
     motion: Motion,
     pixels: Vec<Pixel>,
-    ambient: Vec<[f32; 3]>,
     hot: Vec<Hot>,
     colours: [[f64; 3]; 2],
     beam2: f64,
@@ -200,7 +199,6 @@ impl Simulator {
             scene,
             motion,
             pixels: Vec::new(),
-            ambient: Vec::new(),
             hot: Vec::new(),
             colours: p.colours.map(|c| c.rgb()),
             beam2: p.beam_half_thickness.unwrap_or(0.0006 * distance).powi(2),
@@ -271,7 +269,7 @@ impl Simulator {
     pub fn surface_points(&self) -> (Vec<[f32; 3]>, Vec<[u8; 3]>) {
         self.pixels
             .iter()
-            .zip(&self.ambient)
+            .zip(self.hot.iter().map(|h| h.ambient))
             .filter(|(p, _)| p.hit)
             .map(|(p, a)| {
                 (
@@ -646,7 +644,6 @@ impl Simulator {
             })
             .collect();
         self.pixels = pixels;
-        self.ambient = ambient;
     }
 }
 
