@@ -13,8 +13,8 @@
 //! in a wider, dimmer copy of the same profile (blur `forward_blur_mrad`), so centres stay
 //! exact; backscatter adds glow where a camera ray crosses a sheet in front of its
 //! surface (`∝ 1/|cos|`, attenuated, clipped), up to where the sheet first meets a
-//! surface (a per-frame table of 4096 sheet rays). Glow is not shadowed by objects
-//! between the sheet and the camera other than the pixel's own surface.
+//! surface (a per-frame table of 4096 sheet rays; nothing can hide the glow from the
+//! camera, as it lies in front of the pixel's first surface).
 
 use image::RgbImage;
 use nalgebra::{Matrix2, Matrix3x2, Vector3};
