@@ -23,22 +23,22 @@
 //! | `name` | string | required | scene name (recorded in `truth.json`) |
 //! | `medium` | `"air"` / `"water"` | `"air"` | water enables attenuation, forward scatter, glow |
 //! | **`[camera]`** | | | |
-//! | `position`, `look_at` | [x,y,z] | required | camera centre and a point on the optical axis; their distance is the scene *distance* that defaults scale with |
-//! | `up` | [x,y,z] | [0,0,1] | world direction that appears up in the image |
+//! | `position`, `look_at` | `[x,y,z]` | required | camera centre and a point on the optical axis; their distance is the scene *distance* that defaults scale with |
+//! | `up` | `[x,y,z]` | `[0,0,1]` | world direction that appears up in the image |
 //! | `width`, `height` | int | 1920, 1080 | resolution, px |
 //! | `hfov_deg` | float | | horizontal field of view (gives `fx = fy`) |
 //! | `fx`, `fy` | float | | focal lengths, px (`fx` overrides `hfov_deg`; `fy` defaults to `fx`) |
 //! | `cx`, `cy` | float | image centre | principal point, px (pixel centres are integers) |
-//! | `distortion` | [float] | [] | OpenCV `k1, k2, p1, p2[, k3[, k4, k5, k6]]` |
+//! | `distortion` | `[float]` | `[]` | OpenCV `k1, k2, p1, p2[, k3[, k4, k5, k6]]` |
 //! | `psf_sigma_px` | float | 0.8 | optics blur of the stripe, px |
 //! | **`[projector]`** | | | |
 //! | `baseline` | float | 0.2 × distance | rest distance of the laser centre from the camera centre |
-//! | `baseline_direction` | [x,y,z] | [1,0,0] | direction of that offset in *camera* axes (+X right, +Y down) |
+//! | `baseline_direction` | `[x,y,z]` | `[1,0,0]` | direction of that offset in *camera* axes (+X right, +Y down) |
 //! | `wobble` | float | 0.1 × baseline | the centre stays within this radius of its rest position |
 //! | `wobble_period_frames` | float | 50 | period of the slowest wobble term |
 //! | `fan_deg` | float | 75 | full opening angle of each laser fan |
-//! | `colours` | [name, name] | ["red", "green"] | laser 0 and laser 1: `red`, `green`, `blue` |
-//! | `power` | float | 170 | stripe peak, grey levels, on white facing the laser at the scene distance (more saturates) |
+//! | `colours` | `[name, name]` | `["red", "green"]` | laser 0 and laser 1: `red`, `green`, `blue` |
+//! | `power` | float | 230 | stripe peak, grey levels, on white facing the laser at the scene distance (more saturates) |
 //! | `beam_half_thickness` | float | 0.0006 × distance | Gaussian 1σ half thickness of the sheet |
 //! | `sweep_period_frames` | float | 40 | period of the horizontal aim sweep (vertical: × golden ratio) |
 //! | `sweep_overscan` | float | 1.15 | aim sweep extent relative to the image (> 1: partly off the scene) |
@@ -46,24 +46,24 @@
 //! | `roll_period_frames` | float | 33 | period of the roll |
 //! | **`[light]`** | | | |
 //! | `ambient` | float | 110 | grey level of white lit face-on by the ambient light |
-//! | `direction` | [x,y,z] | [0.3,-0.5,1] | world direction towards the ambient light |
+//! | `direction` | `[x,y,z]` | `[0.3,-0.5,1]` | world direction towards the ambient light |
 //! | `flat_fraction` | float | 0.4 | share of ambient light independent of orientation |
-//! | `background` | [r,g,b] | [18,18,22] | grey levels where a ray leaves the scene (air) |
+//! | `background` | `[r,g,b]` | `[18,18,22]` | grey levels where a ray leaves the scene (air) |
 //! | **`[water]`** | | | (used when `medium = "water"` or `--turbidity` > 0) |
 //! | `turbidity` | float | 1 | scales scattering, forward scatter and glow |
-//! | `absorption` | [r,g,b] | [0.40,0.06,0.03] | absorption per unit length (red strongest) |
-//! | `scattering` | [r,g,b] | [0.05,0.06,0.08] | scattering per unit length at turbidity 1 |
-//! | `backscatter` | float | 5 | glow grey level of a sheet seen face-on at the scene distance |
-//! | `forward_scatter` | float | 0.12 | fraction of stripe light blurred per unit path |
+//! | `absorption` | `[r,g,b]` | `[0.40,0.06,0.03]` | absorption per unit length (red strongest) |
+//! | `scattering` | `[r,g,b]` | `[0.05,0.06,0.08]` | scattering per unit length at turbidity 1 |
+//! | `backscatter` | float | 1.5 | glow grey level of a sheet seen face-on at the scene distance |
+//! | `forward_scatter` | float | 0.06 | fraction of stripe light blurred per unit path |
 //! | `forward_blur_mrad` | float | 4 | angular size of that blur |
-//! | `veil` | [r,g,b] | [8,40,48] | colour of the water column (distant haze) |
+//! | `veil` | `[r,g,b]` | `[8,40,48]` | colour of the water column (distant haze) |
 //! | **`[[primitive]]`** | | | one table per surface |
-//! | `shape` | string | required | `plane` (`point`, `normal`), `rectangle` (`corner`, `edge_u`, `edge_v`), `box` (`center`, `size`, optional `rotation_deg` = [x,y,z] Euler angles applied x, then y, then z), `cylinder` (`from`, `to`, `radius`, optional `capped` = true), `sphere` (`center`, `radius`) |
+//! | `shape` | string | required | `plane` (`point`, `normal`), `rectangle` (`corner`, `edge_u`, `edge_v`), `box` (`center`, `size`, optional `rotation_deg` = `[x,y,z]` Euler angles applied x, then y, then z), `cylinder` (`from`, `to`, `radius`, optional `capped` = true), `sphere` (`center`, `radius`) |
 //! | `name` | string | | label for error messages |
-//! | `albedo` | [r,g,b] | [0.7,0.7,0.7] | reflectance in [0, 1] |
+//! | `albedo` | `[r,g,b]` | `[0.7,0.7,0.7]` | reflectance in `[0, 1]` |
 //! | `texture` | `none`/`checker`/`noise` | `noise` | solid texture in world coordinates |
 //! | `texture_scale` | float | 0.05 × distance | texture cell size |
-//! | `texture_contrast` | float | 0.5 | albedo varies in [1 − contrast, 1] × albedo |
+//! | `texture_contrast` | float | 0.5 | albedo varies in `[1 − contrast, 1]` × albedo |
 //!
 //! ```toml
 //! name = "wall"
@@ -95,9 +95,9 @@
 //!
 //! `truth.json` fields: `version` (1), `scene`, `seed`, `medium`, `turbidity`,
 //! `noise_sigma`, `camera` ([`Camera`]), `lasers` (`[{name, rgb}]`, laser 0 first),
-//! `fan_deg`, `beam_half_thickness`, `frames` (`[{index, projector_centre, planes,
-//! axis, roll_rad, fan_dirs}]`; `planes[k] = [a, b, c]` with `aX + bY + cZ = 1` in
-//! camera coordinates).
+//! `fan_deg`, `beam_half_thickness`, `projector_rest_centre`, `wobble`, `frames`
+//! (`[{index, projector_centre, planes, axis, roll_rad, fan_dirs}]`; `planes[k] =
+//! [a, b, c]` with `aX + bY + cZ = 1` in camera coordinates).
 
 pub mod motion;
 pub mod render;
@@ -194,6 +194,10 @@ pub struct Truth {
     pub lasers: Vec<LaserTruth>,
     pub fan_deg: f64,
     pub beam_half_thickness: f64,
+    /// Rest position of the projector centre (camera coordinates) and the radius it
+    /// wobbles within.
+    pub projector_rest_centre: [f64; 3],
+    pub wobble: f64,
     pub frames: Vec<FrameTruth>,
 }
 
@@ -267,6 +271,8 @@ pub fn truth_of(sim: &Simulator, frames: usize) -> Truth {
             .collect(),
         fan_deg: spec.projector.fan_deg,
         beam_half_thickness: sim.beam_half_thickness(),
+        projector_rest_centre: sim.motion().rest_centre().into(),
+        wobble: sim.motion().wobble(),
         frames: (0..frames).map(|i| sim.frame_truth(i)).collect(),
     }
 }

@@ -6,6 +6,15 @@
 //! `I ∝ exp(−d² / (2 (b² + g² σ_psf²)))`, where `b` is the beam half thickness and `g`
 //! the length of `∇_pixel d` (metres per pixel along the curve normal). In pixel units
 //! that is a profile of variance `(b/g)² + σ_psf²` centred exactly on the curve `d = 0`.
+//! Only pixels within 4σ are shaded: fan test, a shadow ray to the projector, Lambert
+//! incidence, inverse-square fall-off, albedo × texture.
+//!
+//! Under water: per-channel attenuation `exp(-c (|P - C| + |P|))`; forward scatter mixes
+//! in a wider, dimmer copy of the same profile (blur `forward_blur_mrad`), so centres stay
+//! exact; backscatter adds glow where a camera ray crosses a sheet in front of its
+//! surface (`∝ 1/|cos|`, attenuated, clipped), up to where the sheet first meets a
+//! surface (a per-frame table of 4096 sheet rays; nothing can hide the glow from the
+//! camera, as it lies in front of the pixel's first surface).
 
 use image::RgbImage;
 use nalgebra::{Matrix2, Matrix3x2, Vector3};
@@ -56,6 +65,17 @@ struct Pixel {
     hit: bool,
 }
 
+/// The part of [`Pixel`] every frame reads for every pixel, packed so a frame streams
+/// 32 bytes per pixel instead of a hundred.
+#[derive(Clone, Copy, Debug, Default)]
+struct Hot {
+    p: [f32; 3],
+    /// `Pixel::jf2`, or -1 where the ray leaves the scene.
+    jf2: f32,
+    ambient: [f32; 3],
+    range: f32,
+}
+
 /// Laser `k` in one frame.
 struct LaserFrame {
     n: V3,
@@ -64,7 +84,12 @@ struct LaserFrame {
     axis: V3,
     fan_dir: V3,
     colour: [f64; 3],
+    /// Under water: how far the sheet's light travels before it meets a surface, in
+    /// `REACH_BINS` bins of `tan(angle in the fan)`; the water behind is dark.
+    reach: Vec<f64>,
 }
+
+const REACH_BINS: usize = 4096;
 
 struct Water {
     /// Attenuation per unit length, per channel.
@@ -75,6 +100,42 @@ struct Water {
     backscatter: f64,
     /// Variance of the forward-scatter blur, px².
     halo2: f64,
+    /// `exp(-c * L)` per channel, tabulated over path length `L` (linear interpolation:
+    /// three `exp` per pixel and laser would dominate the frame time).
+    atten: Vec<[f64; 3]>,
+    atten_step: f64,
+}
+
+impl Water {
+    const LUT_LEN: usize = 4096;
+
+    fn new(c: [f64; 3], forward: f64, backscatter: f64, halo2: f64, max_path: f64) -> Water {
+        let atten_step = max_path / (Self::LUT_LEN - 1) as f64;
+        let atten = (0..Self::LUT_LEN)
+            .map(|i| c.map(|ck| (-ck * i as f64 * atten_step).exp()))
+            .collect();
+        Water {
+            c,
+            forward,
+            backscatter,
+            halo2,
+            atten,
+            atten_step,
+        }
+    }
+
+    /// Transmission along a path of length `l`, per channel.
+    #[inline]
+    fn transmission(&self, l: f64) -> [f64; 3] {
+        let x = (l / self.atten_step).max(0.0);
+        let i = x as usize;
+        if i + 1 >= self.atten.len() {
+            return self.c.map(|ck| (-ck * l).exp());
+        }
+        let f = x - i as f64;
+        let (a, b) = (self.atten[i], self.atten[i + 1]);
+        [0, 1, 2].map(|k| a[k] + (b[k] - a[k]) * f)
+    }
 }
 
 /// The renderer of one scene: owns the fixed view and renders any frame on demand.
@@ -85,7 +146,7 @@ pub struct Simulator {
     scene: Scene,
     motion: Motion,
     pixels: Vec<Pixel>,
-    ambient: Vec<[f32; 3]>,
+    hot: Vec<Hot>,
     colours: [[f64; 3]; 2],
     beam2: f64,
     psf2: f64,
@@ -99,7 +160,21 @@ pub struct Simulator {
 const GAUSS_BITS: u32 = 12;
 
 impl Simulator {
+    /// Validates the spec (it may have been built or changed in code) and ray-casts the
+    /// fixed view.
     pub fn new(spec: &SceneSpec, params: &SimParams) -> Result<Simulator, SimError> {
+        if let Err((_, message)) = spec.validate() {
+            return Err(SimError::Invalid {
+                path: spec.name.clone().into(),
+                message,
+            });
+        }
+        if !(params.noise_sigma >= 0.0 && params.noise_sigma.is_finite()) {
+            return Err(SimError::Invalid {
+                path: spec.name.clone().into(),
+                message: format!("noise sigma {} must be >= 0", params.noise_sigma),
+            });
+        }
         let camera = camera_from_spec(&spec.camera);
         let scene = Scene::from_spec(spec);
         let motion = Motion::new(spec, params.seed);
@@ -109,12 +184,14 @@ impl Simulator {
             let w = &spec.water;
             let t = w.turbidity.max(0.0);
             let blur_px = w.forward_blur_mrad * 1e-3 * camera.fx * t.sqrt();
-            Water {
-                c: [0, 1, 2].map(|k| w.absorption[k] + t * w.scattering[k]),
-                forward: w.forward_scatter * t,
-                backscatter: w.backscatter * t,
-                halo2: blur_px * blur_px,
-            }
+            Water::new(
+                [0, 1, 2].map(|k| w.absorption[k] + t * w.scattering[k]),
+                w.forward_scatter * t,
+                w.backscatter * t,
+                blur_px * blur_px,
+                // Longest path: projector to a far point and back to the camera.
+                12.0 * distance,
+            )
         });
         let mut sim = Simulator {
             spec: spec.clone(),
@@ -122,7 +199,7 @@ impl Simulator {
             scene,
             motion,
             pixels: Vec::new(),
-            ambient: Vec::new(),
+            hot: Vec::new(),
             colours: p.colours.map(|c| c.rgb()),
             beam2: p.beam_half_thickness.unwrap_or(0.0006 * distance).powi(2),
             psf2: spec.camera.psf_sigma_px.powi(2),
@@ -192,7 +269,7 @@ impl Simulator {
     pub fn surface_points(&self) -> (Vec<[f32; 3]>, Vec<[u8; 3]>) {
         self.pixels
             .iter()
-            .zip(&self.ambient)
+            .zip(self.hot.iter().map(|h| h.ambient))
             .filter(|(p, _)| p.hit)
             .map(|(p, a)| {
                 (
@@ -211,8 +288,8 @@ impl Simulator {
     }
 
     /// Renders frame `index` into `img` (resized if needed). When `lit` is given
-    /// (`width * height` entries), pixels whose centre lies within 0.5 px of an
-    /// unshadowed stripe centre line inside the fan are set to 255.
+    /// (`width * height` entries; ignored otherwise), pixels whose centre lies within
+    /// 0.5 px of an unshadowed stripe centre line inside the fan are set to 255.
     pub fn render_frame_into(
         &self,
         index: usize,
@@ -227,6 +304,10 @@ impl Simulator {
             axis: pose.axis,
             fan_dir: pose.fan_dirs[k],
             colour: self.colours[k].map(|c| c * self.power),
+            reach: match self.water {
+                Some(_) => self.sheet_reach(&pose, k),
+                None => Vec::new(),
+            },
         });
         self.render(img, Some(&lasers), index as u64, lit);
         FrameTruth {
@@ -259,7 +340,7 @@ impl Simulator {
         }
         let frame_key = mix64(self.params.seed ^ mix64(key));
         let buf: &mut [u8] = img;
-        match lit {
+        match lit.filter(|l| l.len() == w * h) {
             Some(lit) => buf
                 .par_chunks_mut(3 * w)
                 .zip(lit.par_chunks_mut(w))
@@ -294,26 +375,18 @@ impl Simulator {
         let mut bits = 0u64;
         let mut left = 0u32;
         let mask = (1u64 << GAUSS_BITS) - 1;
-        for x in 0..w {
-            let i = y * w + x;
-            let px = &self.pixels[i];
-            let mut v = [
-                self.ambient[i][0] as f64,
-                self.ambient[i][1] as f64,
-                self.ambient[i][2] as f64,
-            ];
+        let hot_row = &self.hot[y * w..(y + 1) * w];
+        for (x, hot) in hot_row.iter().enumerate() {
+            let mut v = hot.ambient.map(|a| a as f64);
             if let Some(lasers) = lasers {
                 for laser in lasers {
-                    if px.hit {
-                        let lit_here = self.add_stripe(px, laser, &mut v);
-                        if lit_here {
-                            if let Some(l) = lit_row.as_deref_mut() {
-                                l[x] = 255;
-                            }
+                    if hot.jf2 >= 0.0 && self.add_stripe(y * w + x, hot, laser, &mut v) {
+                        if let Some(l) = lit_row.as_deref_mut() {
+                            l[x] = 255;
                         }
                     }
                     if let Some(water) = &self.water {
-                        self.add_glow(px, laser, water, &mut v);
+                        self.add_glow(hot, laser, water, &mut v);
                     }
                 }
             }
@@ -336,12 +409,22 @@ impl Simulator {
     /// Adds laser `l`'s stripe at pixel `px`; returns whether the pixel centre lies
     /// within 0.5 px of the lit centre line.
     #[inline]
-    fn add_stripe(&self, px: &Pixel, l: &LaserFrame, v: &mut [f64; 3]) -> bool {
+    fn add_stripe(&self, i: usize, hot: &Hot, l: &LaserFrame, v: &mut [f64; 3]) -> bool {
+        let halo2 = self.water.as_ref().map_or(0.0, |w| w.halo2);
+        // The sharp stripe is cut at 4σ, the faint forward-scatter halo at 3σ. This first
+        // test uses the single-precision copy, with a margin for its rounding.
+        let window2 = 16.0 * self.beam2 + hot.jf2 as f64 * (16.0 * self.psf2 + 9.0 * halo2);
+        let d_approx =
+            l.n.x * hot.p[0] as f64 + l.n.y * hot.p[1] as f64 + l.n.z * hot.p[2] as f64 - l.h;
+        let beyond = d_approx.abs() - 1e-6 * hot.range as f64;
+        if beyond > 0.0 && beyond * beyond > window2 {
+            return false;
+        }
+        let px = &self.pixels[i];
         let p = V3::new(px.p[0], px.p[1], px.p[2]);
         let d = l.n.dot(&p) - l.h;
         let d2 = d * d;
-        let halo2 = self.water.as_ref().map_or(0.0, |w| w.halo2);
-        if d2 > 16.0 * (self.beam2 + px.jf2 as f64 * (self.psf2 + halo2)) {
+        if d2 > window2 {
             return false;
         }
         let j = &px.j;
@@ -352,7 +435,7 @@ impl Simulator {
         let e = d2 / (2.0 * s2);
         let s2h = s2 + g2 * halo2;
         let eh = d2 / (2.0 * s2h);
-        if e > 8.0 && eh > 8.0 {
+        if e > 8.0 && (halo2 == 0.0 || eh > 4.5) {
             return false;
         }
         // Inside the fan and in front of the projector.
@@ -372,10 +455,8 @@ impl Simulator {
         if ndc <= 0.0 {
             return false;
         }
-        if let Some(hit) = self.scene.cast(&l.centre, &(p - l.centre)) {
-            if hit.t < 1.0 - 1e-6 {
-                return false;
-            }
+        if self.scene.occluded(&l.centre, &(p - l.centre), 1.0 - 1e-6) {
+            return false;
         }
         let dist = to_c.norm();
         let cos = ndc / dist;
@@ -383,10 +464,10 @@ impl Simulator {
         let mut profile = (-e).exp();
         let mut atten = [1.0; 3];
         if let Some(water) = &self.water {
-            let path = dist + px.range as f64;
+            let path = dist + hot.range as f64;
             let f = 1.0 - (-water.forward * path).exp();
             profile = (1.0 - f) * profile + f * (s2 / s2h).sqrt() * (-eh).exp();
-            atten = water.c.map(|c| (-c * path).exp());
+            atten = water.transmission(path);
         }
         for c in 0..3 {
             v[c] += fall * profile * px.refl[c] as f64 * l.colour[c] * atten[c];
@@ -394,35 +475,59 @@ impl Simulator {
         d2 < 0.25 * g2
     }
 
+    /// Distance from the projector to the first surface along laser `k`'s sheet, per
+    /// bin of `tan` of the fan angle (infinite where the sheet leaves the scene).
+    fn sheet_reach(&self, pose: &ProjectorPose, k: usize) -> Vec<f64> {
+        let step = 2.0 * self.tan_half_fan / REACH_BINS as f64;
+        (0..REACH_BINS)
+            .map(|i| {
+                let t = -self.tan_half_fan + (i as f64 + 0.5) * step;
+                let dir = pose.axis + pose.fan_dirs[k] * t;
+                self.scene
+                    .cast(&pose.centre, &dir)
+                    .map_or(f64::INFINITY, |h| (h.point - pose.centre).norm())
+            })
+            .collect()
+    }
+
     /// Backscatter: the sheet lights the water column in front of the surface.
     #[inline]
-    fn add_glow(&self, px: &Pixel, l: &LaserFrame, water: &Water, v: &mut [f64; 3]) {
+    fn add_glow(&self, px: &Hot, l: &LaserFrame, water: &Water, v: &mut [f64; 3]) {
         if water.backscatter <= 0.0 {
             return;
         }
-        let range = px.range as f64;
-        let r = V3::new(px.p[0], px.p[1], px.p[2]) / range;
-        let nr = l.n.dot(&r);
-        if nr.abs() < 1e-9 {
+        // The camera ray `λ p` meets the sheet at λ = h / (n·p); in front of the surface
+        // means 0 < λ < 1.
+        let p = V3::new(px.p[0] as f64, px.p[1] as f64, px.p[2] as f64);
+        let np = l.n.dot(&p);
+        let lambda = l.h / np;
+        if !(lambda > 0.0 && lambda < 1.0) {
             return;
         }
-        let s = l.h / nr;
-        if s <= 0.0 || s >= range {
-            return;
-        }
-        let x = r * s;
+        let x = p * lambda;
         let w = x - l.centre;
         let wa = w.dot(&l.axis);
-        if wa <= 0.0 || w.dot(&l.fan_dir).abs() > wa * self.tan_half_fan {
+        let wf = w.dot(&l.fan_dir);
+        if wa <= 0.0 || wf.abs() > wa * self.tan_half_fan {
             return;
         }
+        let range = px.range as f64;
         let dist = w.norm();
+        // Sheet light stops at the first surface it meets (the sheet's own shadow).
+        let bin = ((wf / wa + self.tan_half_fan) / (2.0 * self.tan_half_fan) * REACH_BINS as f64)
+            as usize;
+        if l.reach
+            .get(bin.min(REACH_BINS - 1))
+            .is_some_and(|&r| dist > r)
+        {
+            return;
+        }
         // Path length through the sheet ∝ 1/|cos|, bounded where the ray runs along it.
-        let path = (1.0 / nr.abs()).min(12.0);
+        let path = (range / np.abs()).min(6.0);
         let g = water.backscatter * (self.reference_distance / dist) * path / self.power;
+        let tr = water.transmission(dist + lambda * range);
         for c in 0..3 {
-            let add = g * l.colour[c] * (-water.c[c] * (dist + s)).exp();
-            v[c] += add.min(80.0);
+            v[c] += (g * l.colour[c] * tr[c]).min(60.0);
         }
     }
 
@@ -528,8 +633,17 @@ impl Simulator {
                     };
                 }
             });
+        self.hot = pixels
+            .iter()
+            .zip(&ambient)
+            .map(|(p, a)| Hot {
+                p: p.p.map(|v| v as f32),
+                jf2: if p.hit { p.jf2 } else { -1.0 },
+                ambient: *a,
+                range: p.range,
+            })
+            .collect();
         self.pixels = pixels;
-        self.ambient = ambient;
     }
 }
 

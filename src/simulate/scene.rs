@@ -163,7 +163,7 @@ fn default_colours() -> [LaserColour; 2] {
     [LaserColour::Red, LaserColour::Green]
 }
 fn default_power() -> f64 {
-    170.0
+    230.0
 }
 fn default_sweep_period() -> f64 {
     40.0
@@ -264,10 +264,10 @@ fn default_scattering() -> [f64; 3] {
     [0.05, 0.06, 0.08]
 }
 fn default_backscatter() -> f64 {
-    5.0
+    1.5
 }
 fn default_forward() -> f64 {
-    0.12
+    0.06
 }
 fn default_blur() -> f64 {
     4.0
@@ -377,7 +377,19 @@ impl SceneSpec {
                 message: format!("column {col}: {}{at}", e.message()),
             }
         })?;
-        spec.validate(origin)?;
+        if let Err((section, message)) = spec.validate() {
+            return Err(match section_line(text, section) {
+                Some(line) => SimError::Toml {
+                    path: origin.to_path_buf(),
+                    line,
+                    message,
+                },
+                None => SimError::Invalid {
+                    path: origin.to_path_buf(),
+                    message,
+                },
+            });
+        }
         Ok(spec)
     }
 
@@ -410,10 +422,16 @@ impl SceneSpec {
         self
     }
 
-    fn validate(&self, origin: &Path) -> Result<(), SimError> {
-        let bad = |message: String| SimError::Invalid {
-            path: origin.to_path_buf(),
-            message,
+    /// Checks what serde cannot: required keys per shape, ranges, consistency. The error
+    /// names the table it is about, so the caller can give its line.
+    pub(crate) fn validate(&self) -> Result<(), (Section, String)> {
+        let bad = |message: String| {
+            let section = match message.split_once(']') {
+                Some(("[camera", _)) => Section::Table("[camera]"),
+                Some(("[projector", _)) => Section::Table("[projector]"),
+                _ => Section::Top,
+            };
+            (section, message)
         };
         if self.version != SCENE_VERSION {
             return Err(bad(format!(
@@ -475,11 +493,14 @@ impl SceneSpec {
         }
         for (i, prim) in self.primitives.iter().enumerate() {
             validate_primitive(prim).map_err(|m| {
-                bad(format!(
-                    "[[primitive]] #{} ({:?}): {m}",
-                    i + 1,
-                    prim.name.as_deref().unwrap_or(shape_name(prim.shape))
-                ))
+                (
+                    Section::Primitive(i),
+                    format!(
+                        "[[primitive]] #{} ({:?}): {m}",
+                        i + 1,
+                        prim.name.as_deref().unwrap_or(shape_name(prim.shape))
+                    ),
+                )
             })?;
         }
         Ok(())
@@ -575,6 +596,29 @@ fn validate_primitive(p: &PrimitiveSpec) -> Result<(), String> {
         }
     }
     Ok(())
+}
+
+/// Where in the file a validation error belongs.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Section {
+    Top,
+    Table(&'static str),
+    /// The n-th `[[primitive]]` (0-based).
+    Primitive(usize),
+}
+
+/// 1-based line of a section's header in the scene text.
+fn section_line(text: &str, section: Section) -> Option<usize> {
+    let (header, nth) = match section {
+        Section::Top => return None,
+        Section::Table(h) => (h, 0),
+        Section::Primitive(i) => ("[[primitive]]", i),
+    };
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| l.trim() == header)
+        .nth(nth)
+        .map(|(i, _)| i + 1)
 }
 
 /// 1-based line, 1-based column and text of the line holding byte `offset`.
@@ -834,6 +878,20 @@ impl Scene {
             normal,
             primitive,
         })
+    }
+
+    /// Whether any surface lies on `origin + t * dir` for `0 < t < t_max` (shadow rays:
+    /// stops at the first blocker instead of finding the nearest).
+    pub fn occluded(&self, origin: &V3, dir: &V3, t_max: f64) -> bool {
+        let len = dir.norm();
+        if len == 0.0 || !len.is_finite() {
+            return false;
+        }
+        let d = dir / len;
+        let t_max = t_max * len;
+        self.geometry
+            .iter()
+            .any(|g| intersect(g, origin, &d, t_max).is_some())
     }
 
     /// Albedo times texture at a hit, per channel, in `[0, 1]`.
@@ -1158,6 +1216,10 @@ mod tests {
         // From inside the big sphere: its far side.
         let h = s.cast(&V3::new(0.0, 0.0, 6.0), &V3::y()).expect("hit");
         assert!(close(&h.point, [0.0, 1.0, 6.0]));
+        // Shadow queries stop short of t_max.
+        assert!(s.occluded(&V3::zeros(), &V3::new(0.0, 0.0, 4.0), 0.7));
+        assert!(!s.occluded(&V3::zeros(), &V3::new(0.0, 0.0, 4.0), 0.6));
+        assert!(!s.occluded(&V3::new(0.0, 0.0, 8.0), &V3::z(), 100.0));
         // Misses.
         assert!(s.cast(&V3::zeros(), &V3::new(1.0, 0.0, 0.1)).is_none());
         assert!(s.cast(&V3::new(0.0, 0.0, 8.0), &V3::z()).is_none());
@@ -1186,7 +1248,7 @@ mod tests {
         let m = SceneSpec::from_toml_str(text, Path::new("my.toml"))
             .expect_err("missing radius")
             .to_string();
-        assert!(m.contains("radius") && m.contains("my.toml"), "{m}");
+        assert!(m.contains("radius") && m.contains("my.toml:6"), "{m}");
     }
 
     #[test]

@@ -514,3 +514,149 @@ fn resolution_override_keeps_the_field_of_view() {
     let rb = b.ray_from_pixel(-0.5, -0.5).expect("ray");
     assert!((ra - rb).norm() < 1e-9);
 }
+
+#[test]
+fn jpeg_artefacts_change_the_image_but_not_much() {
+    let spec = stripe_scene("").with_resolution(96, 72);
+    let clean = Simulator::new(&spec, &quiet()).expect("sim");
+    let jpeg = Simulator::new(
+        &spec,
+        &SimParams {
+            jpeg_quality: Some(60),
+            ..quiet()
+        },
+    )
+    .expect("sim");
+    let (a, _) = clean.render_frame(3);
+    let (b, _) = jpeg.render_frame(3);
+    assert_eq!(a.dimensions(), b.dimensions());
+    let diffs: Vec<f64> = a
+        .as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(&x, &y)| (x as f64 - y as f64).abs())
+        .collect();
+    let mean = diffs.iter().sum::<f64>() / diffs.len() as f64;
+    assert!(mean > 0.1 && mean < 8.0, "mean JPEG difference {mean}");
+}
+
+#[test]
+fn blue_green_lasers_light_the_blue_and_green_channels() {
+    let mut spec = stripe_scene("colours = [\"blue\", \"green\"]").with_resolution(160, 120);
+    spec.projector.power = 150.0;
+    let sim = Simulator::new(&spec, &quiet()).expect("sim");
+    let bg = sim.background();
+    let (img, _) = sim.render_frame(2);
+    let gain = |c: usize| -> f64 {
+        img.pixels()
+            .zip(bg.pixels())
+            .map(|(p, q)| (p[c] as f64 - q[c] as f64).max(0.0))
+            .sum()
+    };
+    assert!(gain(2) > 5.0 * gain(0), "blue {} red {}", gain(2), gain(0));
+    assert!(gain(1) > 5.0 * gain(0));
+}
+
+#[test]
+fn gaussian_noise_has_the_requested_sigma() {
+    let spec = stripe_scene("").with_resolution(128, 96);
+    let noisy = |seed: u64| {
+        Simulator::new(
+            &spec,
+            &SimParams {
+                seed,
+                noise_sigma: 4.0,
+                ..quiet()
+            },
+        )
+        .expect("sim")
+        .background()
+    };
+    let clean = Simulator::new(&spec, &quiet()).expect("sim").background();
+    let (a, b) = (noisy(7), noisy(8));
+    // The difference of two independent noisy images: no rounding bias of a clean
+    // reference, variance 2σ² plus twice the quantisation variance 1/12.
+    let d: Vec<f64> = a
+        .as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .zip(clean.as_raw())
+        .filter(|(_, &c)| c > 12 && c < 240)
+        .map(|((&x, &y), _)| x as f64 - y as f64)
+        .collect();
+    let n = d.len() as f64;
+    let mean = d.iter().sum::<f64>() / n;
+    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
+    let sigma = ((var - 2.0 / 12.0) / 2.0).sqrt();
+    assert!(mean.abs() < 0.15, "mean {mean}");
+    assert!((sigma - 4.0).abs() < 0.15, "sigma {sigma}");
+}
+
+#[test]
+fn glow_appears_exactly_where_a_camera_ray_crosses_a_lit_sheet() {
+    let mut spec = stripe_scene("").with_resolution(160, 120);
+    spec.medium = Medium::Water;
+    spec.water.backscatter = 100.0;
+    let with = Simulator::new(&spec, &quiet()).expect("sim");
+    spec.water.backscatter = 0.0;
+    let without = Simulator::new(&spec, &quiet()).expect("sim");
+    let cam = with.camera().clone();
+    let scene = with.scene();
+    let tan_half = (0.5 * spec.projector.fan_deg.to_radians()).tan();
+    let (mut glowing, mut dark) = (0, 0);
+    for frame in 0..16 {
+        let (a, truth) = with.render_frame(frame);
+        let (b, _) = without.render_frame(frame);
+        let centre = V3::from(truth.projector_centre);
+        let axis = V3::from(truth.axis);
+        for y in (0..cam.height).step_by(3) {
+            'pixel: for x in (0..cam.width).step_by(3) {
+                let ray = cam.ray_from_pixel(x as f64, y as f64).expect("ray");
+                let Some(hit) = scene.cast(&V3::zeros(), &ray) else {
+                    continue;
+                };
+                let mut predicted = false;
+                for k in 0..2 {
+                    // The camera ray meets sheet k at X = λ P (v·X = 1).
+                    let lambda = 1.0 / V3::from(truth.planes[k]).dot(&hit.point);
+                    if (lambda - 1.0).abs() < 0.02 || lambda.abs() < 0.02 {
+                        continue 'pixel;
+                    }
+                    if !(lambda > 0.0 && lambda < 1.0) {
+                        continue;
+                    }
+                    let w = hit.point * lambda - centre;
+                    let ratio = w.dot(&V3::from(truth.fan_dirs[k])).abs() / w.dot(&axis);
+                    if w.dot(&axis) <= 0.0 {
+                        continue;
+                    }
+                    if (ratio - tan_half).abs() < 0.02 {
+                        continue 'pixel;
+                    }
+                    if ratio > tan_half {
+                        continue;
+                    }
+                    // Lit unless the sheet met a surface before X.
+                    match scene.cast(&centre, &w) {
+                        Some(h) if (h.t - 1.0).abs() < 0.02 => continue 'pixel,
+                        Some(h) if h.t < 1.0 => {}
+                        _ => predicted = true,
+                    }
+                }
+                let (p, q) = (a.get_pixel(x, y), b.get_pixel(x, y));
+                let diff: i32 = (0..3).map(|c| p[c] as i32 - q[c] as i32).sum();
+                if predicted {
+                    assert!(diff > 0, "no glow at ({x}, {y}) in frame {frame}");
+                    glowing += 1;
+                } else {
+                    assert_eq!(diff, 0, "glow at ({x}, {y}) in frame {frame}");
+                    dark += 1;
+                }
+            }
+        }
+    }
+    assert!(
+        glowing > 100 && dark > 100,
+        "{glowing} glowing, {dark} dark"
+    );
+}

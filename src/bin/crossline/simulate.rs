@@ -90,7 +90,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                     BUILTIN_SCENES.join(", ")
                 );
             }
-            load_scene_file(&path).with_context(|| format!("loading scene {}", path.display()))?
+            load_scene_file(&path).context("loading the scene")?
         }
     };
     if args.width.is_some() || args.height.is_some() {
@@ -149,6 +149,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     };
     let summary = pool.install(|| {
         let sim = Simulator::new(&spec, &params).context("preparing the scene")?;
+        tracing::debug!("scene ray-cast in {:.2} s", start.elapsed().as_secs_f64());
         write_sim_dir(&sim, args.frames, &args.out, |n| bar.set_position(n as u64))
             .with_context(|| format!("writing the simulation to {}", args.out.display()))
     })?;
