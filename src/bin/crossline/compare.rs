@@ -425,3 +425,20 @@ fn load_truth(dir: &Path) -> anyhow::Result<Box<dyn GroundTruth>> {
         dir.display()
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn output_names_and_short_numbers() {
+        assert_eq!(
+            with_suffix(Path::new("eval/run1"), "_hist.png"),
+            PathBuf::from("eval/run1_hist.png")
+        );
+        assert_eq!(short(0.004946123), "0.004946");
+        assert_eq!(short(1234.5678), "1235");
+        assert_eq!(short(2.5e-7), "2.500E-7");
+        assert_eq!(short(0.0), "0");
+    }
+}
