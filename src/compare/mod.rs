@@ -396,12 +396,12 @@ mod tests {
         let mut rng = Rng(11);
         let rotation = Rotation3::from_axis_angle(
             &nalgebra::Unit::new_normalize(Vector3::new(0.3, 1.0, -0.2)),
-            1f64.to_radians(),
+            3f64.to_radians(),
         );
         let truth = Similarity {
             scale: 1.2,
             rotation: *rotation.matrix(),
-            translation: Vector3::new(0.02, -0.01, 0.02),
+            translation: Vector3::new(0.05, -0.03, 0.04),
         };
         // 70 % of the cloud on the reference surfaces, 30 % on a floor the reference
         // lacks; the cloud is the reference frame mapped by the inverse of `truth`.
