@@ -495,4 +495,53 @@ mod tests {
         assert_eq!(short(2.5e-7), "2.500E-7");
         assert_eq!(short(0.0), "0");
     }
+
+    #[test]
+    fn reference_mode_writes_histogram_coloured_cloud_and_report() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let grid: Vec<[f32; 3]> = (0..60 * 60)
+            .map(|i| [(i % 60) as f32 * 0.01, (i / 60) as f32 * 0.01, 2.0])
+            .collect();
+        // Every other grid point, 1 cm in front of the plane.
+        let cloud: Vec<[f32; 3]> = grid.iter().step_by(2).map(|p| [p[0], p[1], 1.99]).collect();
+        let write = |name: &str, points: Vec<[f32; 3]>| {
+            let path = dir.path().join(name);
+            let c = Cloud {
+                points,
+                ..Cloud::default()
+            };
+            ply::write_ply(&path, &c, &[]).expect("write");
+            path
+        };
+        let args = Args {
+            cloud: write("cloud.ply", cloud.clone()),
+            reference: Some(write("ref.ply", grid)),
+            truth: None,
+            align: AlignMode::None,
+            thresholds: vec![0.005, 0.02],
+            overlap: 0.5,
+            bins: 40,
+            outlier: 0.02,
+            coverage_radius: 2.0,
+            out: Some(dir.path().join("run")),
+            json: true,
+        };
+        run(args).expect("compare runs");
+        let img = image::open(dir.path().join("run_hist.png"))
+            .expect("png")
+            .to_rgb8();
+        assert_eq!((img.width(), img.height()), (900, 560));
+        let coloured = ply::read_ply(&dir.path().join("run_distances.ply")).expect("ply");
+        assert_eq!(coloured.len(), cloud.len());
+        let d = coloured.distances.expect("distance property");
+        assert!(d.iter().all(|&d| (d - 0.01).abs() < 1e-5), "{:?}", &d[..4]);
+        assert!(coloured.colors.is_some());
+        let text = std::fs::read_to_string(dir.path().join("run_report.json")).expect("json");
+        let json: serde_json::Value = serde_json::from_str(&text).expect("valid json");
+        assert_eq!(json["version"], 1);
+        assert_eq!(json["points"], cloud.len());
+        assert!((json["distances"]["median"].as_f64().expect("median") - 0.01).abs() < 1e-5);
+        assert_eq!(json["distances"]["over"][0]["fraction"], 1.0);
+        assert_eq!(json["distances"]["over"][1]["fraction"], 0.0);
+    }
 }
