@@ -3,11 +3,11 @@
 //! The tree is implicit: the points are permuted so that every node is a range
 //! `lo..hi` of the array whose middle element `mid = lo + (hi - lo) / 2` is the
 //! splitting point, with smaller coordinates on the left along the node's axis (the axis
-//! of largest extent, stored at `axes[mid]`). Ranges of at most [`LEAF`] points are
+//! of largest extent, stored at `axes[mid]`). Ranges of at most `LEAF` (8) points are
 //! searched by brute force. No pointers, no per-node allocation; building is
 //! `O(n log n)` with `select_nth_unstable`, and large subtrees are built in parallel.
 //!
-//! Nodes of more than [`BOXED`] points also keep the tight bounding box of their points,
+//! Nodes of more than `BOXED` (32) points also keep the tight bounding box of their points,
 //! indexed in heap order (root 1, children `2i`, `2i + 1`): a cell's splitting planes
 //! alone say nothing about the empty space at the edge of the data, and queries far
 //! from the reference (outliers, parts the reference lacks) would otherwise visit

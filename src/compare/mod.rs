@@ -318,10 +318,10 @@ mod tests {
         [v.x as f32, v.y as f32, v.z as f32]
     }
 
-    /// Dense regular samples of both surfaces (spacing about 3 mm).
-    fn reference() -> Vec<[f32; 3]> {
+    /// Regular samples of the three surfaces, spacing about `3 mm · density`.
+    fn reference(density: usize) -> Vec<[f32; 3]> {
         let mut out = Vec::new();
-        let m = 400;
+        let m = 400 / density;
         for i in 0..m {
             for j in 0..m {
                 let (x, y) = (
@@ -331,9 +331,9 @@ mod tests {
                 out.push(f32s(&wall(x, y).0));
             }
         }
-        let n = 130_000;
+        let n = 130_000 / (density * density);
         out.extend((0..n).map(|i| f32s(&ball(fibonacci(i, n)).0)));
-        let n = 32_000;
+        let n = 32_000 / (density * density);
         out.extend((0..n).map(|i| f32s(&small_ball(fibonacci(i, n)).0)));
         out
     }
@@ -354,12 +354,12 @@ mod tests {
 
     #[test]
     fn scale_alignment_recovers_scale_and_normal_offset() {
-        let reference = reference();
+        let reference = reference(1);
         let mut rng = Rng(7);
         let truth_scale = 1.37;
         let offset = 0.01;
         // Offsets of both signs: a one-sided offset on a wall is itself a scale change.
-        let cloud: Vec<[f32; 3]> = random_surface(&mut rng, 20_000)
+        let cloud: Vec<[f32; 3]> = random_surface(&mut rng, 10_000)
             .iter()
             .enumerate()
             .map(|(i, (p, n))| {
@@ -392,16 +392,16 @@ mod tests {
 
     #[test]
     fn similarity_icp_recovers_a_known_transform_with_partial_overlap() {
-        let reference = reference();
+        let reference = reference(1);
         let mut rng = Rng(11);
         let rotation = Rotation3::from_axis_angle(
             &nalgebra::Unit::new_normalize(Vector3::new(0.3, 1.0, -0.2)),
-            1f64.to_radians(),
+            3f64.to_radians(),
         );
         let truth = Similarity {
             scale: 1.2,
             rotation: *rotation.matrix(),
-            translation: Vector3::new(0.02, -0.01, 0.02),
+            translation: Vector3::new(0.05, -0.03, 0.04),
         };
         // 70 % of the cloud on the reference surfaces, 30 % on a floor the reference
         // lacks; the cloud is the reference frame mapped by the inverse of `truth`.
@@ -421,7 +421,7 @@ mod tests {
         let params = CompareParams {
             align: AlignMode::Similarity,
             align_params: AlignParams {
-                max_samples: 5_000,
+                max_samples: 3_000,
                 ..Default::default()
             },
             ..Default::default()

@@ -69,6 +69,10 @@ pub struct TruthReport {
     /// Statistics of `|s·Z − Z_true| / Z_true` (dimensionless).
     pub relative_error: ErrorStats,
     pub coverage: Coverage,
+    /// Relative error of every input point, `NaN` where there is none (no surface,
+    /// invalid); for plots and coloured clouds, not serialised.
+    #[serde(skip)]
+    pub per_point: Vec<f32>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -145,6 +149,11 @@ pub fn evaluate_against_truth(
         .map(|&(z, zt)| (scale * z - zt).abs() / zt)
         .collect();
     let relative_error = ErrorStats::from_values(&mut errors, &[params.outlier_relative]);
+    drop(errors);
+    let per_point = depths
+        .iter()
+        .map(|&(z, zt)| ((scale * z - zt).abs() / zt) as f32)
+        .collect();
     let outlier_fraction = relative_error.over.first().map_or(0.0, |e| e.fraction);
     Ok(TruthReport {
         points: points.len(),
@@ -157,6 +166,7 @@ pub fn evaluate_against_truth(
         outlier_fraction,
         relative_error,
         coverage: coverage(points, camera, lit, params.coverage_radius_px),
+        per_point,
     })
 }
 
@@ -306,6 +316,9 @@ mod tests {
         assert_eq!(r.evaluated, on_surface);
         assert_eq!(r.no_surface, 37);
         assert_eq!(r.invalid, 1);
+        assert_eq!(r.per_point.len(), r.points);
+        assert!(r.per_point[on_surface..].iter().all(|e| e.is_nan()));
+        assert!((r.per_point[9] - 0.2).abs() < 2e-3);
         assert!((r.scale / scale - 1.0).abs() < 1e-4, "scale {}", r.scale);
         assert!(
             (r.relative_error.median - 0.005).abs() < 2e-4,

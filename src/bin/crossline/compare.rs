@@ -35,8 +35,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 /// rotation, translation and scale by trimmed ICP (reference in another frame, roughly
 /// pre-aligned).
 ///
-/// Files with --out PREFIX: PREFIX_hist.png (distance histogram), PREFIX_distances.ply
-/// (aligned cloud coloured by distance, with a `distance` property) and
+/// Files with --out PREFIX: PREFIX_hist.png (histogram of the distances, or of the
+/// relative depth errors with --truth), PREFIX_distances.ply (the cloud aligned, or
+/// scaled by s, coloured by that value, which is also its `distance` property) and
 /// PREFIX_report.json (the --json report, version 1).
 ///
 /// Example:
@@ -79,7 +80,8 @@ pub struct Args {
     /// A lit pixel is covered when a point projects within this many pixels (--truth).
     #[arg(long, default_value_t = 2.0, value_name = "PX")]
     coverage_radius: f64,
-    /// Write PREFIX_hist.png, PREFIX_distances.ply and PREFIX_report.json.
+    /// Write PREFIX_hist.png, PREFIX_distances.ply and PREFIX_report.json (PREFIX may
+    /// include a folder, which must exist).
     #[arg(long, value_name = "PREFIX")]
     out: Option<PathBuf>,
     /// Print the JSON report on stdout instead of the summary.
@@ -172,88 +174,113 @@ fn run_reference(args: &Args, cloud: &Cloud, reference_path: &Path) -> anyhow::R
         print_reference_summary(args, cloud, &reference, &result, reference_path);
     }
     if let Some(prefix) = &args.out {
-        // The colour scale and the histogram's range: up to the 99th percentile, so one
-        // far outlier does not flatten everything else.
-        let x_max = if result.stats.p99 > 0.0 {
-            result.stats.p99
-        } else {
-            result.stats.max.max(f64::MIN_POSITIVE)
-        };
         let s = &result.stats;
-        let style = HistogramStyle {
-            bins: args.bins.max(1),
-            title: format!(
-                "N={}  MEDIAN={}  RMS={}  ALIGN={}",
-                s.count,
-                short(s.median),
-                short(s.rms),
-                mode_name(args.align)
-            ),
-            ..HistogramStyle::default()
-        };
-        let markers = [
-            Marker {
-                label: format!("MEDIAN {}", short(s.median)),
-                value: s.median,
-                colour: [200, 30, 30],
-            },
-            Marker {
-                label: format!("P95 {}", short(s.p95)),
-                value: s.p95,
-                colour: [230, 140, 0],
-            },
-        ];
-        let img = plot::histogram_image(&result.distances, x_max, &markers, &style);
-        let png = with_suffix(prefix, "_hist.png");
-        img.save(&png)
-            .with_context(|| format!("writing histogram {}", png.display()))?;
-
+        let title = format!(
+            "N={}  MEDIAN={}  RMS={}  ALIGN={}",
+            s.count,
+            short(s.median),
+            short(s.rms),
+            mode_name(args.align)
+        );
         let t = &result.alignment.transform;
-        let coloured = Cloud {
-            points: cloud
-                .points
-                .iter()
-                .map(|p| {
-                    let m = t.apply(p);
-                    [m.x as f32, m.y as f32, m.z as f32]
-                })
-                .collect(),
-            colors: Some(
-                result
-                    .distances
-                    .iter()
-                    .map(|&d| plot::colour_map(d as f64 / x_max))
-                    .collect(),
-            ),
-            frames: cloud.frames.clone(),
-            lasers: cloud.lasers.clone(),
-            distances: Some(result.distances.clone()),
-        };
-        let ply_path = with_suffix(prefix, "_distances.ply");
-        let comments = [
-            format!(
-                "crossline compare: distance to {} after --align {} (points aligned)",
-                reference_path.display(),
-                mode_name(args.align)
-            ),
-            format!("colour: viridis over distance 0 .. {x_max} (p99), grey = no distance"),
-        ];
-        ply::write_ply(&ply_path, &coloured, &comments)
-            .with_context(|| format!("writing coloured cloud {}", ply_path.display()))?;
-
+        let comment = format!(
+            "crossline compare: distance to {} after --align {} (points aligned)",
+            reference_path.display(),
+            mode_name(args.align)
+        );
+        let written = write_plots(
+            prefix,
+            cloud,
+            |p| {
+                let m = t.apply(p);
+                [m.x as f32, m.y as f32, m.z as f32]
+            },
+            &result.distances,
+            s,
+            Labels {
+                title,
+                x_label: "DISTANCE (SCENE UNITS)".into(),
+                comment,
+            },
+            args.bins,
+        )?;
         let json_path = with_suffix(prefix, "_report.json");
         std::fs::write(&json_path, format!("{json}\n"))
             .with_context(|| format!("writing report {}", json_path.display()))?;
         if !args.json {
-            println!(
-                "wrote      {}, {}, {}",
-                png.display(),
-                ply_path.display(),
-                json_path.display()
-            );
+            println!("wrote      {written}, {}", json_path.display());
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+struct Labels {
+    title: String,
+    x_label: String,
+    comment: String,
+}
+
+/// Writes PREFIX_hist.png (histogram of `values`) and PREFIX_distances.ply (`cloud`
+/// moved by `place`, coloured by `values`, which become its `distance` property);
+/// returns the two paths for the summary.
+fn write_plots(
+    prefix: &Path,
+    cloud: &Cloud,
+    place: impl Fn(&[f32; 3]) -> [f32; 3],
+    values: &[f32],
+    stats: &ErrorStats,
+    labels: Labels,
+    bins: usize,
+) -> anyhow::Result<String> {
+    // The histogram's range and the colour scale end at the 99th percentile, so that a
+    // few far outliers do not flatten everything else.
+    let x_max = if stats.p99 > 0.0 {
+        stats.p99
+    } else {
+        stats.max.max(f64::MIN_POSITIVE)
+    };
+    let style = HistogramStyle {
+        bins: bins.max(1),
+        title: labels.title,
+        x_label: labels.x_label,
+        ..HistogramStyle::default()
+    };
+    let markers = [
+        Marker {
+            label: format!("MEDIAN {}", short(stats.median)),
+            value: stats.median,
+            colour: [200, 30, 30],
+        },
+        Marker {
+            label: format!("P95 {}", short(stats.p95)),
+            value: stats.p95,
+            colour: [230, 140, 0],
+        },
+    ];
+    let img = plot::histogram_image(values, x_max, &markers, &style);
+    let png = with_suffix(prefix, "_hist.png");
+    img.save(&png)
+        .with_context(|| format!("writing histogram {}", png.display()))?;
+    let coloured = Cloud {
+        points: cloud.points.iter().map(place).collect(),
+        colors: Some(
+            values
+                .iter()
+                .map(|&d| plot::colour_map(d as f64 / x_max))
+                .collect(),
+        ),
+        frames: cloud.frames.clone(),
+        lasers: cloud.lasers.clone(),
+        distances: Some(values.to_vec()),
+    };
+    let ply_path = with_suffix(prefix, "_distances.ply");
+    let comments = [
+        labels.comment,
+        format!("colour: viridis over 0 .. {x_max} (p99), grey = none"),
+    ];
+    ply::write_ply(&ply_path, &coloured, &comments)
+        .with_context(|| format!("writing coloured cloud {}", ply_path.display()))?;
+    Ok(format!("{}, {}", png.display(), ply_path.display()))
 }
 
 fn mode_name(mode: AlignMode) -> &'static str {
@@ -408,9 +435,36 @@ fn run_truth(args: &Args, cloud: &Cloud, dir: &Path) -> anyhow::Result<ExitCode>
         );
     }
     if let Some(prefix) = &args.out {
+        let r = &full.truth;
+        let scale = r.scale as f32;
+        let written = write_plots(
+            prefix,
+            cloud,
+            |p| p.map(|c| c * scale),
+            &r.per_point,
+            &r.relative_error,
+            Labels {
+                title: format!(
+                    "N={}  MEDIAN={}  SCALE={}",
+                    r.evaluated,
+                    short(r.relative_error.median),
+                    short(r.scale)
+                ),
+                x_label: "RELATIVE DEPTH ERROR".into(),
+                comment: format!(
+                    "crossline compare: relative depth error against {} (points scaled by {})",
+                    dir.display(),
+                    r.scale
+                ),
+            },
+            args.bins,
+        )?;
         let json_path = with_suffix(prefix, "_report.json");
         std::fs::write(&json_path, format!("{json}\n"))
             .with_context(|| format!("writing report {}", json_path.display()))?;
+        if !args.json {
+            println!("wrote      {written}, {}", json_path.display());
+        }
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -424,4 +478,70 @@ fn load_truth(dir: &Path) -> anyhow::Result<Box<dyn GroundTruth>> {
         "--truth is not wired to the simulator yet (cannot load {})",
         dir.display()
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn output_names_and_short_numbers() {
+        assert_eq!(
+            with_suffix(Path::new("eval/run1"), "_hist.png"),
+            PathBuf::from("eval/run1_hist.png")
+        );
+        assert_eq!(short(0.004946123), "0.004946");
+        assert_eq!(short(1234.5678), "1235");
+        assert_eq!(short(2.5e-7), "2.500E-7");
+        assert_eq!(short(0.0), "0");
+    }
+
+    #[test]
+    fn reference_mode_writes_histogram_coloured_cloud_and_report() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let grid: Vec<[f32; 3]> = (0..60 * 60)
+            .map(|i| [(i % 60) as f32 * 0.01, (i / 60) as f32 * 0.01, 2.0])
+            .collect();
+        // Every other grid point, 1 cm in front of the plane.
+        let cloud: Vec<[f32; 3]> = grid.iter().step_by(2).map(|p| [p[0], p[1], 1.99]).collect();
+        let write = |name: &str, points: Vec<[f32; 3]>| {
+            let path = dir.path().join(name);
+            let c = Cloud {
+                points,
+                ..Cloud::default()
+            };
+            ply::write_ply(&path, &c, &[]).expect("write");
+            path
+        };
+        let args = Args {
+            cloud: write("cloud.ply", cloud.clone()),
+            reference: Some(write("ref.ply", grid)),
+            truth: None,
+            align: AlignMode::None,
+            thresholds: vec![0.005, 0.02],
+            overlap: 0.5,
+            bins: 40,
+            outlier: 0.02,
+            coverage_radius: 2.0,
+            out: Some(dir.path().join("run")),
+            json: true,
+        };
+        run(args).expect("compare runs");
+        let img = image::open(dir.path().join("run_hist.png"))
+            .expect("png")
+            .to_rgb8();
+        assert_eq!((img.width(), img.height()), (900, 560));
+        let coloured = ply::read_ply(&dir.path().join("run_distances.ply")).expect("ply");
+        assert_eq!(coloured.len(), cloud.len());
+        let d = coloured.distances.expect("distance property");
+        assert!(d.iter().all(|&d| (d - 0.01).abs() < 1e-5), "{:?}", &d[..4]);
+        assert!(coloured.colors.is_some());
+        let text = std::fs::read_to_string(dir.path().join("run_report.json")).expect("json");
+        let json: serde_json::Value = serde_json::from_str(&text).expect("valid json");
+        assert_eq!(json["version"], 1);
+        assert_eq!(json["points"], cloud.len());
+        assert!((json["distances"]["median"].as_f64().expect("median") - 0.01).abs() < 1e-5);
+        assert_eq!(json["distances"]["over"][0]["fraction"], 1.0);
+        assert_eq!(json["distances"]["over"][1]["fraction"], 0.0);
+    }
 }
