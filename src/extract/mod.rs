@@ -312,6 +312,8 @@ pub struct Extractor {
     low: f32,
     high: f32,
     per_grey_level: f32,
+    /// No lens distortion: points skip the (per-point allocating) undistortion.
+    undistorted_camera: bool,
     stats: ExtractStats,
 }
 
@@ -343,6 +345,7 @@ impl Extractor {
             low: params.low_contrast * per_grey_level,
             high: params.high_contrast * per_grey_level,
             per_grey_level,
+            undistorted_camera: camera.distortion.is_zero(),
             active: vec![vec![false; tiles]; params.lasers.len()],
             params: params.clone(),
             camera: camera.clone(),
@@ -478,6 +481,7 @@ impl Extractor {
         let camera = &self.camera;
         let params = &self.params;
         let per_grey = self.per_grey_level;
+        let undistorted_camera = self.undistorted_camera;
         self.linker.link(
             &det.points,
             &det.index,
@@ -494,7 +498,14 @@ impl Extractor {
                 };
                 for &i in chain {
                     let p = det.points[i as usize];
-                    if let Some(n) = camera.normalized_from_pixel(p.x as f64, p.y as f64) {
+                    let (u, v) = (p.x as f64, p.y as f64);
+                    let normalized = if undistorted_camera {
+                        let (x, y) = camera.distorted_from_pixel(u, v);
+                        Some([x, y])
+                    } else {
+                        camera.normalized_from_pixel(u, v)
+                    };
+                    if let Some(n) = normalized {
                         curve.points_px.push([p.x, p.y]);
                         curve.points.push(n);
                         curve.strength.push(p.strength / per_grey);
