@@ -399,30 +399,8 @@ impl Extractor {
         let mut curves = Vec::new();
         self.stats = ExtractStats::default();
         for laser in 0..self.params.lasers.len() {
-            let lut = &self.lut;
-            let (fr, bg) = (frame.as_raw(), background.image().as_raw());
-            let width = self.detector.width;
-            self.detector
-                .prepare(&self.active[laser], |y, x0, row, masked| {
-                    let start = 3 * (y * width + x0);
-                    let f = &fr[start..start + 3 * row.len()];
-                    let b = &bg[start..start + 3 * row.len()];
-                    for (((o, m), f), b) in row
-                        .iter_mut()
-                        .zip(masked.iter_mut())
-                        .zip(f.chunks_exact(3))
-                        .zip(b.chunks_exact(3))
-                    {
-                        let (dr, dg, db) = (
-                            f[0].saturating_sub(b[0]),
-                            f[1].saturating_sub(b[1]),
-                            f[2].saturating_sub(b[2]),
-                        );
-                        let (r, other_laser) = lut.response(laser as u8, dr, dg, db);
-                        *m = u8::from(other_laser);
-                        *o = r as f32;
-                    }
-                });
+            let fill = response_rgb(&self.lut, laser as u8, frame, background.image());
+            self.detector.prepare(&self.active[laser], fill);
             self.detector.detect(&self.active[laser], self.low);
             self.stats.active_tiles += self.active[laser].iter().filter(|a| **a).count();
             self.stats.ridge_points += self.detector.points.len();
@@ -526,6 +504,39 @@ impl Extractor {
                 curves.push(curve);
             },
         );
+    }
+}
+
+/// The RGB input's response filler for [`Detector::prepare`]: laser `laser`'s response
+/// to the positive part of `frame − background`, and the other-laser mask. Another input
+/// format (YUYV) needs its own filler and activation pass; the rest is shared.
+fn response_rgb<'a>(
+    lut: &'a ColourLut,
+    laser: u8,
+    frame: &'a RgbImage,
+    background: &'a RgbImage,
+) -> impl FnMut(usize, usize, &mut [f32], &mut [u8]) + 'a {
+    let width = frame.width() as usize;
+    let (fr, bg) = (frame.as_raw(), background.as_raw());
+    move |y, x0, row, masked| {
+        let start = 3 * (y * width + x0);
+        let f = &fr[start..start + 3 * row.len()];
+        let b = &bg[start..start + 3 * row.len()];
+        for (((o, m), f), b) in row
+            .iter_mut()
+            .zip(masked.iter_mut())
+            .zip(f.chunks_exact(3))
+            .zip(b.chunks_exact(3))
+        {
+            let (dr, dg, db) = (
+                f[0].saturating_sub(b[0]),
+                f[1].saturating_sub(b[1]),
+                f[2].saturating_sub(b[2]),
+            );
+            let (r, other_laser) = lut.response(laser, dr, dg, db);
+            *m = u8::from(other_laser);
+            *o = r as f32;
+        }
     }
 }
 
