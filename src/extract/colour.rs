@@ -32,7 +32,7 @@ pub struct LaserColour {
     /// Name for logs, overlays and the curves file ("red", "green", "blue").
     pub name: String,
     /// Hue range in degrees `[from, to]`, going up from `from`; it wraps through 360
-    /// when `from > to` (red is `[320, 30]`).
+    /// when `from > to` (red is `[300, 40]`).
     pub hue_deg: [f32; 2],
     /// Colour drawn in overlays.
     pub display_rgb: [u8; 3],
@@ -54,7 +54,7 @@ impl LaserColour {
     pub fn red() -> Self {
         Self {
             name: "red".into(),
-            hue_deg: [320.0, 35.0],
+            hue_deg: [300.0, 40.0],
             display_rgb: [255, 40, 40],
         }
     }

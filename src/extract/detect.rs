@@ -3,9 +3,9 @@
 //! The caller marks *active* tiles (tiles holding at least one laser-coloured pixel) and
 //! fills the response image around them; the detector then runs the separable
 //! Gaussian-derivative filters and the Hessian only there:
-//! - the response is needed on the active tiles dilated by one tile (8-neighbourhood),
+//! - the response is needed on the active tiles and the kernel radius around them,
 //! - the row pass (smooth, first and second derivative along x) on the active tiles
-//!   dilated by one tile vertically,
+//!   and the kernel radius above and below them,
 //! - the column pass, the Hessian and the sub-pixel test on the active tiles.
 //!
 //! A tile is at least as large as the kernel radius, so one tile of margin holds every
@@ -68,8 +68,16 @@ pub(crate) struct LinePoint {
 
 pub(crate) const NO_POINT: u32 = u32::MAX;
 
-const TILE_RESPONSE: u8 = 1;
-const TILE_ROWS: u8 = 2;
+/// A pixel rectangle `[x0, x1, y0, y1)`; empty when `x0 >= x1`.
+type Rect = [usize; 4];
+const EMPTY: Rect = [usize::MAX, 0, usize::MAX, 0];
+
+fn merge(a: &mut Rect, b: Rect) {
+    a[0] = a[0].min(b[0]);
+    a[1] = a[1].max(b[1]);
+    a[2] = a[2].min(b[2]);
+    a[3] = a[3].max(b[3]);
+}
 
 pub(crate) struct Detector {
     pub width: usize,
@@ -86,8 +94,10 @@ pub(crate) struct Detector {
     row_s: Vec<f32>,
     row_d1: Vec<f32>,
     row_d2: Vec<f32>,
-    /// Per tile: `TILE_RESPONSE` and/or `TILE_ROWS` (what must be computed there).
-    needs: Vec<u8>,
+    /// Per tile: the part whose response must be computed (kernel margins of the
+    /// active tiles around it), and the part that needs the row pass.
+    response_box: Vec<Rect>,
+    rows_box: Vec<Rect>,
     acc: Vec<f32>,
     pub points: Vec<LinePoint>,
     /// Per pixel: index into `points`, or `NO_POINT`.
@@ -113,7 +123,8 @@ impl Detector {
             row_s: vec![0.0; n],
             row_d1: vec![0.0; n],
             row_d2: vec![0.0; n],
-            needs: vec![0; tiles_x * tiles_y],
+            response_box: vec![EMPTY; tiles_x * tiles_y],
+            rows_box: vec![EMPTY; tiles_x * tiles_y],
             acc: vec![0.0; 6 * tile],
             points: Vec::new(),
             index: vec![NO_POINT; n],
@@ -143,8 +154,10 @@ impl Detector {
         active: &[bool],
         mut fill: impl FnMut(usize, usize, &mut [f32], &mut [u8]),
     ) {
-        self.needs.fill(0);
+        self.response_box.fill(EMPTY);
+        self.rows_box.fill(EMPTY);
         let (tx_n, ty_n) = (self.tiles_x as isize, self.tiles_y as isize);
+        let r = self.kernels.radius;
         for (t, _) in active.iter().enumerate().filter(|(_, a)| **a) {
             let (tx, ty) = ((t % self.tiles_x) as isize, (t / self.tiles_x) as isize);
             for dy in -1..=1 {
@@ -154,19 +167,31 @@ impl Detector {
                         continue;
                     }
                     let u = (y * tx_n + x) as usize;
-                    self.needs[u] |= TILE_RESPONSE;
+                    let (x0, x1, y0, y1) = self.tile_bounds(u);
+                    // Only the kernel radius next to the active tile is needed.
+                    let (xa, xb) = match dx {
+                        -1 => (x1.saturating_sub(r).max(x0), x1),
+                        0 => (x0, x1),
+                        _ => (x0, (x0 + r).min(x1)),
+                    };
+                    let (ya, yb) = match dy {
+                        -1 => (y1.saturating_sub(r).max(y0), y1),
+                        0 => (y0, y1),
+                        _ => (y0, (y0 + r).min(y1)),
+                    };
+                    merge(&mut self.response_box[u], [xa, xb, ya, yb]);
                     if dx == 0 {
-                        self.needs[u] |= TILE_ROWS;
+                        merge(&mut self.rows_box[u], [xa, xb, ya, yb]);
                     }
                 }
             }
         }
-        for t in 0..self.needs.len() {
-            if self.needs[t] & TILE_RESPONSE == 0 {
-                continue;
-            }
-            let (x0, x1, y0, y1) = self.tile_bounds(t);
+        for t in 0..self.response_box.len() {
+            let [x0, x1, y0, y1] = self.response_box[t];
             for y in y0..y1 {
+                if x0 >= x1 {
+                    break;
+                }
                 let span = y * self.width + x0..y * self.width + x1;
                 fill(
                     y,
@@ -185,9 +210,9 @@ impl Detector {
             self.index[p.pixel as usize] = NO_POINT;
         }
         self.points.clear();
-        for t in 0..self.needs.len() {
-            if self.needs[t] & TILE_ROWS != 0 {
-                self.row_pass(t);
+        for t in 0..self.rows_box.len() {
+            if self.rows_box[t][0] < self.rows_box[t][1] {
+                self.row_pass(self.rows_box[t]);
             }
         }
         for (t, _) in active.iter().enumerate().filter(|(_, a)| **a) {
@@ -195,8 +220,7 @@ impl Detector {
         }
     }
 
-    fn row_pass(&mut self, t: usize) {
-        let (x0, x1, y0, y1) = self.tile_bounds(t);
+    fn row_pass(&mut self, [x0, x1, y0, y1]: Rect) {
         let w = self.width;
         let r = self.kernels.radius as isize;
         let fast = x0 as isize >= r && (x1 as isize + r) <= w as isize;

@@ -5,8 +5,9 @@
 //! both directions: at each step the three neighbour pixels ahead (in the octant of the
 //! line direction) are examined, and the one minimising distance plus angle change is
 //! taken, provided its direction differs by less than the maximum angle. The trace
-//! stops when no neighbour qualifies, or when the best neighbour already belongs to a
-//! curve (a junction: the crossing of two curves, or a branch).
+//! stops when no neighbour qualifies, when the best neighbour already belongs to a
+//! curve (a junction: the crossing of two curves), or when the two diagonal neighbours
+//! qualify but the one straight ahead does not (a fork: ambiguous).
 
 use super::detect::{LinePoint, NO_POINT};
 
@@ -98,7 +99,8 @@ fn trace(g: &Grid, start: u32, mut dir: (f32, f32), used: &mut [bool], out: &mut
         // Octant of the direction, and its two neighbours.
         let octant = (dir.1.atan2(dir.0) / std::f32::consts::FRAC_PI_4).round() as i32;
         let mut best: Option<(u32, f32, (f32, f32))> = None;
-        for d in [octant - 1, octant, octant + 1] {
+        let mut qualified = [false; 3];
+        for (slot, d) in [octant - 1, octant, octant + 1].into_iter().enumerate() {
             let (ox, oy) = OCTANT_STEPS[d.rem_euclid(8) as usize];
             let (qx, qy) = (px + ox, py + oy);
             if qx < 0 || qy < 0 || qx >= g.width as isize || qy >= g.height as isize {
@@ -126,10 +128,16 @@ fn trace(g: &Grid, start: u32, mut dir: (f32, f32), used: &mut [bool], out: &mut
             if dx * dir.0 + dy * dir.1 <= 0.0 {
                 continue;
             }
+            qualified[slot] = true;
             let cost = (dx * dx + dy * dy).sqrt() + cos.min(1.0).acos();
             if best.is_none_or(|(_, c, _)| cost < c) {
                 best = Some((qi, cost, qdir));
             }
+        }
+        // Candidates on both sides but not straight ahead are two lines leaving
+        // this point (a fork): which one continues is ambiguous, so stop here.
+        if qualified[0] && qualified[2] && !qualified[1] {
+            return;
         }
         let Some((next, _, next_dir)) = best else {
             return;
@@ -237,6 +245,34 @@ mod tests {
             strength,
             pixel: (y * w + x) as u32,
         }
+    }
+
+    #[test]
+    fn stops_at_a_fork() {
+        // A horizontal line from x = 0 to 10 on row 10 that forks into two diagonals.
+        let (w, h) = (24, 21);
+        let mut points = Vec::new();
+        let mut index = vec![NO_POINT; w * h];
+        let mut add = |x: usize, y: usize, angle: f32, s: f32, points: &mut Vec<LinePoint>| {
+            index[y * w + x] = points.len() as u32;
+            points.push(point_at(x, y, w, angle, s));
+        };
+        for x in 0..=10 {
+            add(x, 10, 0.0, 10.0, &mut points);
+        }
+        for k in 1..=8 {
+            add(10 + k, 10 - k, -0.3, 5.0, &mut points);
+            add(10 + k, 10 + k, 0.3, 5.0, &mut points);
+        }
+        let mut chains: Vec<Vec<u32>> = Vec::new();
+        Linker::default().link(&points, &index, (w, h), (1.0, 2.0), 0.9, |c| {
+            chains.push(c.to_vec())
+        });
+        // The stem stops at the fork; each branch is its own chain.
+        let stem: Vec<f32> = chains[0].iter().map(|&i| points[i as usize].x).collect();
+        assert_eq!(stem.len(), 11, "{stem:?}");
+        assert_eq!(chains.len(), 3);
+        assert!(chains[1..].iter().all(|c| c.len() == 8));
     }
 
     #[test]

@@ -312,6 +312,8 @@ pub struct Extractor {
     low: f32,
     high: f32,
     per_grey_level: f32,
+    /// No lens distortion: points skip the (per-point allocating) undistortion.
+    undistorted_camera: bool,
     stats: ExtractStats,
 }
 
@@ -343,6 +345,7 @@ impl Extractor {
             low: params.low_contrast * per_grey_level,
             high: params.high_contrast * per_grey_level,
             per_grey_level,
+            undistorted_camera: camera.distortion.is_zero(),
             active: vec![vec![false; tiles]; params.lasers.len()],
             params: params.clone(),
             camera: camera.clone(),
@@ -396,30 +399,8 @@ impl Extractor {
         let mut curves = Vec::new();
         self.stats = ExtractStats::default();
         for laser in 0..self.params.lasers.len() {
-            let lut = &self.lut;
-            let (fr, bg) = (frame.as_raw(), background.image().as_raw());
-            let width = self.detector.width;
-            self.detector
-                .prepare(&self.active[laser], |y, x0, row, masked| {
-                    let start = 3 * (y * width + x0);
-                    let f = &fr[start..start + 3 * row.len()];
-                    let b = &bg[start..start + 3 * row.len()];
-                    for (((o, m), f), b) in row
-                        .iter_mut()
-                        .zip(masked.iter_mut())
-                        .zip(f.chunks_exact(3))
-                        .zip(b.chunks_exact(3))
-                    {
-                        let (dr, dg, db) = (
-                            f[0].saturating_sub(b[0]),
-                            f[1].saturating_sub(b[1]),
-                            f[2].saturating_sub(b[2]),
-                        );
-                        let (r, other_laser) = lut.response(laser as u8, dr, dg, db);
-                        *m = u8::from(other_laser);
-                        *o = r as f32;
-                    }
-                });
+            let fill = response_rgb(&self.lut, laser as u8, frame, background.image());
+            self.detector.prepare(&self.active[laser], fill);
             self.detector.detect(&self.active[laser], self.low);
             self.stats.active_tiles += self.active[laser].iter().filter(|a| **a).count();
             self.stats.ridge_points += self.detector.points.len();
@@ -478,6 +459,7 @@ impl Extractor {
         let camera = &self.camera;
         let params = &self.params;
         let per_grey = self.per_grey_level;
+        let undistorted_camera = self.undistorted_camera;
         self.linker.link(
             &det.points,
             &det.index,
@@ -494,7 +476,14 @@ impl Extractor {
                 };
                 for &i in chain {
                     let p = det.points[i as usize];
-                    if let Some(n) = camera.normalized_from_pixel(p.x as f64, p.y as f64) {
+                    let (u, v) = (p.x as f64, p.y as f64);
+                    let normalized = if undistorted_camera {
+                        let (x, y) = camera.distorted_from_pixel(u, v);
+                        Some([x, y])
+                    } else {
+                        camera.normalized_from_pixel(u, v)
+                    };
+                    if let Some(n) = normalized {
                         curve.points_px.push([p.x, p.y]);
                         curve.points.push(n);
                         curve.strength.push(p.strength / per_grey);
@@ -515,6 +504,39 @@ impl Extractor {
                 curves.push(curve);
             },
         );
+    }
+}
+
+/// The RGB input's response filler for [`Detector::prepare`]: laser `laser`'s response
+/// to the positive part of `frame − background`, and the other-laser mask. Another input
+/// format (YUYV) needs its own filler and activation pass; the rest is shared.
+fn response_rgb<'a>(
+    lut: &'a ColourLut,
+    laser: u8,
+    frame: &'a RgbImage,
+    background: &'a RgbImage,
+) -> impl FnMut(usize, usize, &mut [f32], &mut [u8]) + 'a {
+    let width = frame.width() as usize;
+    let (fr, bg) = (frame.as_raw(), background.as_raw());
+    move |y, x0, row, masked| {
+        let start = 3 * (y * width + x0);
+        let f = &fr[start..start + 3 * row.len()];
+        let b = &bg[start..start + 3 * row.len()];
+        for (((o, m), f), b) in row
+            .iter_mut()
+            .zip(masked.iter_mut())
+            .zip(f.chunks_exact(3))
+            .zip(b.chunks_exact(3))
+        {
+            let (dr, dg, db) = (
+                f[0].saturating_sub(b[0]),
+                f[1].saturating_sub(b[1]),
+                f[2].saturating_sub(b[2]),
+            );
+            let (r, other_laser) = lut.response(laser, dr, dg, db);
+            *m = u8::from(other_laser);
+            *o = r as f32;
+        }
     }
 }
 
