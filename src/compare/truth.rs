@@ -353,3 +353,19 @@ mod tests {
         ));
     }
 }
+
+/// A folder written by `crossline simulate` is a ground truth: exact ray casting in its
+/// scene, and its lit mask.
+impl GroundTruth for crate::simulate::SimDir {
+    fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    fn true_depth(&self, ray_in_camera: &Vector3<f64>) -> Option<f64> {
+        self.scene.ray_depth(ray_in_camera)
+    }
+
+    fn lit_mask(&self) -> &[bool] {
+        &self.lit
+    }
+}

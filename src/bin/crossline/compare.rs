@@ -469,15 +469,11 @@ fn run_truth(args: &Args, cloud: &Cloud, dir: &Path) -> anyhow::Result<ExitCode>
     Ok(ExitCode::SUCCESS)
 }
 
-/// The simulator's ground truth for `dir`.
-///
-/// TO BE WIRED AT MERGE: `crossline::simulate::load_sim_dir(dir)` and `impl GroundTruth
-/// for SimDir` (camera, `scene.ray_depth`, `lit`). Kept tiny on purpose.
+/// The ground truth of a folder written by `crossline simulate`.
 fn load_truth(dir: &Path) -> anyhow::Result<Box<dyn GroundTruth>> {
-    anyhow::bail!(
-        "--truth is not wired to the simulator yet (cannot load {})",
-        dir.display()
-    )
+    let sim = crossline::simulate::load_sim_dir(dir)
+        .with_context(|| format!("loading the simulation truth from {}", dir.display()))?;
+    Ok(Box::new(sim))
 }
 
 #[cfg(test)]
