@@ -194,6 +194,16 @@ struct PlaneCurves {
     curves: Vec<Curve>,
 }
 
+/// Where the planes come from.
+#[derive(Clone, Copy, Debug)]
+pub enum PlaneSource<'a> {
+    /// Self-calibration from the crossings (the product).
+    SelfCalibrated,
+    /// Known planes per frame and laser (e.g. a simulation's truth): the same pipeline
+    /// with a perfectly calibrated projector, the yardstick of the self-calibration.
+    Known(&'a [[Option<Vector3<f64>>; 2]]),
+}
+
 /// Callbacks for progress on long stages: `(stage, done, total)`.
 pub trait Progress: Sync {
     fn update(&self, stage: &str, done: usize, total: usize);
@@ -206,11 +216,13 @@ impl<F: Fn(&str, usize, usize) + Sync> Progress for F {
 }
 
 /// Runs the whole offline pipeline over image files.
+#[allow(clippy::too_many_arguments)]
 pub fn reconstruct_files(
     frames: &[PathBuf],
     background: Option<&Path>,
     camera: &Camera,
     config: &Config,
+    planes: PlaneSource<'_>,
     scale: &ScaleMode,
     progress: &dyn Progress,
 ) -> Result<Reconstruction, ReconstructError> {
@@ -256,7 +268,14 @@ pub fn reconstruct_files(
         .collect::<Result<_, ReconstructError>>()?;
     times.extract_s = t.elapsed().as_secs_f64();
 
-    let mut rec = reconstruct_curves(per_frame, camera, config, scale, Some(background.image()))?;
+    let mut rec = reconstruct_curves(
+        per_frame,
+        camera,
+        config,
+        planes,
+        scale,
+        Some(background.image()),
+    )?;
     rec.report.seconds.background_s = times.background_s;
     rec.report.seconds.extract_s = times.extract_s;
     Ok(rec)
@@ -267,6 +286,7 @@ pub fn reconstruct_curves(
     per_frame: Vec<Vec<Curve>>,
     camera: &Camera,
     config: &Config,
+    source: PlaneSource<'_>,
     scale: &ScaleMode,
     colour_source: Option<&RgbImage>,
 ) -> Result<Reconstruction, ReconstructError> {
@@ -323,7 +343,20 @@ pub fn reconstruct_curves(
         crossings: &crossings,
         partner: &partner,
     };
-    let solution: Solution = solve::solve(&problem, &config.solve)?;
+    let solution: Solution = match source {
+        PlaneSource::SelfCalibrated => solve::solve(&problem, &config.solve)?,
+        PlaneSource::Known(known) => Solution {
+            planes: planes
+                .iter()
+                .map(|p| {
+                    known
+                        .get(p.frame as usize)
+                        .and_then(|f| f[p.laser as usize & 1])
+                })
+                .collect(),
+            ..Solution::empty()
+        },
+    };
     times.solve_s = t.elapsed().as_secs_f64();
 
     // The solver's planes live in the file's normalised coordinates; with a focal

@@ -154,6 +154,25 @@ pub struct Solution {
     pub null_space_eigenvalues: [f64; 2],
 }
 
+impl Solution {
+    /// A solution with no plane solved (focal scale 1, zero residuals).
+    pub fn empty() -> Self {
+        Self {
+            planes: Vec::new(),
+            global: Vec::new(),
+            focal_scale: 1.0,
+            focal_scale_std: None,
+            rejected_crossings: Vec::new(),
+            rejected_curves: Vec::new(),
+            shallow_crossings: 0,
+            residual_rms: 0.0,
+            sigma_img: 0.0,
+            orthogonality_rms_deg: 0.0,
+            null_space_eigenvalues: [0.0; 2],
+        }
+    }
+}
+
 /// Outcome of the robust global coplanarity stage.
 #[derive(Clone, Debug)]
 pub struct GlobalCoplanarity {

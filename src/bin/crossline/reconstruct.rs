@@ -7,7 +7,8 @@ use std::process::ExitCode;
 use anyhow::{bail, Context};
 use crossline::cloud::ScaleMode;
 use crossline::config::Config;
-use crossline::reconstruct::{self, Reconstruction};
+use crossline::reconstruct::{self, PlaneSource, Reconstruction};
+use nalgebra::Vector3;
 
 /// Recover every laser plane with no knowledge of the projector, and triangulate a
 /// dense, coloured point cloud in the camera frame (OpenCV axes).
@@ -60,6 +61,11 @@ pub struct Args {
     /// water behind a flat port, where it grows by about 1.33).
     #[arg(long)]
     estimate_focal: bool,
+    /// Evaluation only: take the laser planes from a simulation's truth.json (in DIR)
+    /// instead of self-calibrating, to measure how close self-calibration comes to a
+    /// perfectly calibrated projector.
+    #[arg(long, value_name = "SIMDIR")]
+    true_planes: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -75,12 +81,21 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let scale = scale_mode(&args)?;
     let frames = reconstruct::list_frames(&args.input)?;
     tracing::info!(frames = frames.len(), input = %args.input.display(), "reconstructing");
+    let known = match &args.true_planes {
+        Some(dir) => Some(true_planes(dir, frames.len())?),
+        None => None,
+    };
+    let source = match &known {
+        Some(planes) => PlaneSource::Known(planes),
+        None => PlaneSource::SelfCalibrated,
+    };
     let bar = progress_bar(frames.len() as u64);
     let rec = reconstruct::reconstruct_files(
         &frames,
         args.background.as_deref(),
         &camera,
         &config,
+        source,
         &scale,
         &|_stage: &str, done: usize, _total: usize| bar.set_position(done as u64),
     )?;
@@ -88,6 +103,27 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     write_outputs(&rec, &args.out, args.report.as_deref())?;
     print_summary(&rec);
     Ok(ExitCode::SUCCESS)
+}
+
+/// The planes of a simulation's truth, per frame and laser.
+fn true_planes(dir: &Path, frames: usize) -> anyhow::Result<Vec<[Option<Vector3<f64>>; 2]>> {
+    let path = dir.join("truth.json");
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let truth: crossline::simulate::Truth =
+        serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+    if truth.frames.len() != frames {
+        bail!(
+            "{} describes {} frames but the input has {frames}",
+            path.display(),
+            truth.frames.len()
+        );
+    }
+    Ok(truth
+        .frames
+        .iter()
+        .map(|f| f.planes.map(|p| Some(Vector3::from(p))))
+        .collect())
 }
 
 fn scale_mode(args: &Args) -> anyhow::Result<ScaleMode> {
