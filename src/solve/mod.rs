@@ -37,6 +37,7 @@
 pub mod extend;
 pub mod nullspace;
 pub mod ortho;
+pub mod seed;
 pub mod subset;
 pub mod synthetic;
 
@@ -167,7 +168,7 @@ pub struct GlobalCoplanarity {
     pub rejected_curves: Vec<u32>,
 }
 
-fn median(mut x: Vec<f64>) -> Option<f64> {
+pub(crate) fn median(mut x: Vec<f64>) -> Option<f64> {
     if x.is_empty() {
         return None;
     }
@@ -210,9 +211,12 @@ pub fn robust_global(
         },
     );
     let mut prev: Vec<Option<Vector3<f64>>> = vec![None; n_curves];
-    let mut robust_weight = vec![1.0; cr.len()];
+    let mut robust_weight = match seed::consensus_weights(problem, active, &subset, params) {
+        Some((w, _)) => w,
+        None => vec![1.0; cr.len()],
+    };
     let k_out = params.outlier_mad_k;
-    for _outer in 0..8 {
+    for _outer in 0..30 {
         let n = subset.curves.len();
         if n < 4 {
             return Err(SolveError::TooFewPlanes {

@@ -1,6 +1,9 @@
 //! End-to-end tests of [`super::solve`] on synthetic scans with known planes.
 
-use super::synthetic::{analytic_crossings, random_scan, Rng, ScanSpec, SyntheticScan};
+use super::synthetic::{
+    analytic_crossings, random_scan, random_sphere_scan, sphere_crossings, Rng, ScanSpec, Scene,
+    SphereScene, SyntheticScan,
+};
 use super::*;
 
 fn scan(num_crosses: usize, seed: u64) -> (SyntheticScan, Vec<Crossing>) {
@@ -97,10 +100,24 @@ fn the_focal_scale_of_a_flat_port_is_recovered() {
 
 #[test]
 fn wrong_crossings_are_rejected_and_do_not_spoil_the_planes() {
-    let (s, mut cr) = scan(40, 33);
+    let sphere = SphereScene::default();
+    let (planes, partner) = random_sphere_scan(
+        &ScanSpec {
+            num_crosses: 40,
+            seed: 33,
+            ..ScanSpec::default()
+        },
+        &sphere,
+    );
+    let mut cr = sphere_crossings(&sphere, &planes, 0.1);
+    let s = SyntheticScan {
+        scene: Scene::default(),
+        planes,
+        partner,
+    };
     let n = s.planes.len();
     let mut rng = Rng::new(99);
-    let n_wrong = cr.len() / 100;
+    let n_wrong = cr.len() / 20;
     let first_wrong = cr.len();
     for _ in 0..n_wrong {
         let a = rng.index(n) as u32;
@@ -123,7 +140,7 @@ fn wrong_crossings_are_rejected_and_do_not_spoil_the_planes() {
     };
     let sol = solve(&problem, &params).expect("solvable");
     let (_, worst, solved) = plane_error(&sol, &s.planes);
-    assert!(solved >= n - 2, "solved {solved} of {n}");
+    assert!(solved * 10 >= n * 9, "solved {solved} of {n}");
     assert!(worst < 1e-6, "worst relative plane error {worst}");
     let wrong_rejected = sol
         .rejected_crossings
