@@ -14,11 +14,12 @@
 //! 2. [`nullspace::normal_matrix`] and [`nullspace::null_space`]: the stacked
 //!    system `A V = 0` through its normal matrix `AᵀA`, gauge shifted out; its null
 //!    vector `V0` gives all planes as `V = s V0 + (w, …, w)`, a 4-DOF family.
-//! 3. Robust rounds: each crossing's Sampson residual (the image distance, in
-//!    normalised units, from the line where its two planes meet); crossings beyond
-//!    `outlier_mad_k · σ`, `σ = 1.4826 · median |e|`, are dropped and the system
-//!    re-solved, reweighted by the Sampson gradient; curves with most of their
-//!    crossings dropped are rejected.
+//! 3. Robust rounds ([`robust_global`]): each crossing's Sampson residual (the image
+//!    distance, in normalised units, from the line where its two planes meet);
+//!    starting weights from [`seed::consensus_weights`] (small seeds grown curve by
+//!    curve by consensus), then Cauchy reweighting with scale `outlier_mad_k · σ`,
+//!    `σ = 1.4826 · median |e|`; crossings beyond it are outliers, curves with most of
+//!    their crossings out are rejected, and the subset is pruned and re-solved.
 //! 4. [`ortho::solve_orthogonality`]: the orthogonality of each cross's two planes
 //!    fixes `w` (and the focal scale `λ` if asked), leaving the one global scale.
 //! 5. [`extend::fit_plane`]: every other curve from its crossings with solved curves
