@@ -230,6 +230,7 @@ pub fn robust_global(
         let candidates = Subset::from_curves(n_curves, subset.curves.clone(), cr, active).crossings;
         let mut last: Option<(nullspace::NullSpace, Vec<f64>, f64)> = None;
         let mut last_hard: Option<Vec<bool>> = None;
+        let mut was_settled = false;
         for _round in 0..params.robust_rounds.max(1) {
             let weights: Vec<f64> = candidates
                 .iter()
@@ -294,6 +295,7 @@ pub fn robust_global(
             });
             last = Some((ns, resid, sigma));
             last_hard = Some(hard);
+            was_settled = settled;
             if settled || needs_pruning {
                 break;
             }
@@ -317,8 +319,9 @@ pub fn robust_global(
                 }
             }
         }
+        // Judged only on a settled solution: a half-way one misfits good curves too.
         for (i, &(tot, bad)) in count.iter().enumerate() {
-            if tot > 0 && bad as f64 > params.max_outlier_fraction * tot as f64 {
+            if was_settled && tot > 0 && bad as f64 > params.max_outlier_fraction * tot as f64 {
                 let c = subset.curves[i];
                 excluded[c as usize] = true;
                 rejected_curves.push(c);
