@@ -17,9 +17,10 @@
 //! 3. Robust rounds ([`robust_global`]): each crossing's Sampson residual (the image
 //!    distance, in normalised units, from the line where its two planes meet);
 //!    starting weights from [`seed::consensus_weights`] (small seeds grown curve by
-//!    curve by consensus), then Cauchy reweighting with scale `outlier_mad_k · σ`,
-//!    `σ = 1.4826 · median |e|`; crossings beyond it are outliers, curves with most of
-//!    their crossings out are rejected, and the subset is pruned and re-solved.
+//!    curve by consensus), then Cauchy reweighting with scale `2.385 σ`,
+//!    `σ = 1.4826 · median |e|`; crossings beyond `outlier_mad_k · σ` are outliers,
+//!    curves with most of their crossings out are rejected, and the subset is pruned
+//!    and re-solved.
 //! 4. [`ortho::solve_orthogonality`]: the orthogonality of each cross's two planes
 //!    fixes `w` (and the focal scale `λ` if asked), leaving the one global scale.
 //! 5. [`extend::fit_plane`]: every other curve from its crossings with solved curves
@@ -52,6 +53,8 @@ use subset::{adjacency, select_global, Subset};
 const NOISE_FLOOR: f64 = 1e-9;
 /// Sampson residual scale from the median absolute residual of a Gaussian.
 const MAD_TO_SIGMA: f64 = 1.4826;
+/// Cauchy weight scale in robust standard deviations (95 % efficiency on Gaussian noise).
+const CAUCHY_SCALE: f64 = 2.385;
 
 /// Errors of the plane solver.
 #[derive(Debug, thiserror::Error)]
@@ -181,10 +184,10 @@ pub(crate) fn median(mut x: Vec<f64>) -> Option<f64> {
 /// Stages 1–3: subset, coplanarity null space, robust rounds.
 ///
 /// Inner loop (iteratively reweighted least squares): solve the subset over every
-/// active crossing among its curves with weight `ω_k = g_k² / (1 + (e_k / (k σ))²)`,
-/// `g_k` the Sampson gradient factor and `e_k` the Sampson residual of the previous
-/// round (a Cauchy weight: wrong crossings fade out without ever removing a row, so the
-/// system keeps its rank), `σ = 1.4826 · median |e|`; until the set with `|e| ≤ k σ`
+/// active crossing among its curves with weight `ω_k = 1 / (|u|² (1 + (e_k / c σ)²))`,
+/// `c = 2.385` and `e_k` the Sampson residual of the previous round (a Cauchy weight:
+/// wrong crossings fade out without ever removing a row, so the system keeps its
+/// rank), `σ = 1.4826 · median |e|`; until the set with `|e| ≤ k σ`
 /// and `σ` settle. Outer loop: crossings beyond `k σ` are outliers; curves with most of
 /// their crossings out are rejected; the subset is pruned again over the inliers (a
 /// curve whose remaining crossings lie on one line must leave) and re-solved if it
@@ -264,7 +267,7 @@ pub fn robust_global(
                 .collect();
             let sigma = (MAD_TO_SIGMA * median(resid.clone()).unwrap_or(0.0)).max(NOISE_FLOOR);
             for (&k, e) in candidates.iter().zip(&resid) {
-                let r = e / (k_out * sigma);
+                let r = e / (CAUCHY_SCALE * sigma);
                 robust_weight[k] = 1.0 / (1.0 + r * r);
             }
             for (c, v) in prev.iter_mut().enumerate() {

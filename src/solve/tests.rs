@@ -263,9 +263,8 @@ fn params_parse_from_toml_with_defaults_and_reject_unknown_keys() {
 
 #[test]
 fn noise_and_wrong_crossings_together_on_an_object() {
-    // One wrong crossing in fifty: with noise, the robust start does not yet cope
-    // with one in twenty (it does without noise, see above).
-    const NWRONG: usize = 50;
+    // One wrong crossing in twenty.
+    const NWRONG: usize = 20;
     let sphere = SphereScene::default();
     let (planes, partner) = random_sphere_scan(
         &ScanSpec {
