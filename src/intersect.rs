@@ -8,7 +8,7 @@
 //! # Index
 //! A uniform grid over the normalised image plane, cells of side `h`, stored sparsely
 //! (a hash map from cell to the segments whose bounding box overlaps it). `h` adapts to
-//! the data: twice the median segment length of the first curve inserted (or of all
+//! the data: the median segment length of the first curve inserted (or of all
 //! curves in [`find_crossings`]), so a segment touches O(1) cells and a cell holds the
 //! segments of the curves that really pass there. Inserting a curve tests its segments
 //! only against segments in the cells they overlap, so the cost grows with the number
@@ -24,6 +24,12 @@
 //! cell that contains the crossing point, which is among the cells of both segments.
 
 use std::collections::HashMap;
+
+type CellMap = HashMap<(i32, i32), Vec<u32>>;
+
+/// Grid cell side over the median segment length (1 beat 0.5 and 2 by 15–25 % in the
+/// bench of 2000 curves, `cargo bench --bench solve`).
+const CELL_PER_SEGMENT: f64 = 1.0;
 
 /// A crossing of two curves on the image plane.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -53,7 +59,7 @@ pub struct SegmentIndex {
     cell: Option<f64>,
     min_sin_angle: f64,
     segments: Vec<Segment>,
-    grid: HashMap<(i32, i32), Vec<u32>>,
+    grid: CellMap,
 }
 
 fn cross2(a: [f64; 2], b: [f64; 2]) -> f64 {
@@ -81,7 +87,7 @@ impl SegmentIndex {
             cell: None,
             min_sin_angle,
             segments: Vec::new(),
-            grid: HashMap::new(),
+            grid: CellMap::default(),
         }
     }
 
@@ -120,8 +126,8 @@ impl SegmentIndex {
             Some(c) => c,
             None => match median_segment_length(std::iter::once(polyline)) {
                 Some(m) => {
-                    self.cell = Some(2.0 * m);
-                    2.0 * m
+                    self.cell = Some(CELL_PER_SEGMENT * m);
+                    CELL_PER_SEGMENT * m
                 }
                 None => return,
             },
@@ -220,7 +226,8 @@ impl SegmentIndex {
 /// those at an angle whose sine is below `min_sin_angle`. Sorted by `(a, b)` and then
 /// by position, so the output does not depend on the grid.
 pub fn find_crossings(polylines: &[&[[f64; 2]]], min_sin_angle: f64) -> Vec<Crossing> {
-    let cell = median_segment_length(polylines.iter().copied()).map_or(1.0, |m| 2.0 * m);
+    let cell =
+        median_segment_length(polylines.iter().copied()).map_or(1.0, |m| CELL_PER_SEGMENT * m);
     let mut index = SegmentIndex::with_cell_size(cell, min_sin_angle);
     let mut out = Vec::new();
     for (id, pl) in polylines.iter().enumerate() {

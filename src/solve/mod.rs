@@ -14,11 +14,13 @@
 //! 2. [`nullspace::normal_matrix`] and [`nullspace::null_space`]: the stacked
 //!    system `A V = 0` through its normal matrix `AᵀA`, gauge shifted out; its null
 //!    vector `V0` gives all planes as `V = s V0 + (w, …, w)`, a 4-DOF family.
-//! 3. Robust rounds: each crossing's Sampson residual (the image distance, in
-//!    normalised units, from the line where its two planes meet); crossings beyond
-//!    `outlier_mad_k · σ`, `σ = 1.4826 · median |e|`, are dropped and the system
-//!    re-solved, reweighted by the Sampson gradient; curves with most of their
-//!    crossings dropped are rejected.
+//! 3. Robust rounds ([`robust_global`]): each crossing's Sampson residual (the image
+//!    distance, in normalised units, from the line where its two planes meet);
+//!    starting weights from [`seed::consensus_weights`] (small seeds grown curve by
+//!    curve by consensus), then Cauchy reweighting with scale `2.385 σ`,
+//!    `σ = 1.4826 · median |e|`; crossings beyond `outlier_mad_k · σ` are outliers,
+//!    curves with most of their crossings out are rejected, and the subset is pruned
+//!    and re-solved.
 //! 4. [`ortho::solve_orthogonality`]: the orthogonality of each cross's two planes
 //!    fixes `w` (and the focal scale `λ` if asked), leaving the one global scale.
 //! 5. [`extend::fit_plane`]: every other curve from its crossings with solved curves
@@ -37,6 +39,7 @@
 pub mod extend;
 pub mod nullspace;
 pub mod ortho;
+pub mod seed;
 pub mod subset;
 pub mod synthetic;
 
@@ -50,6 +53,8 @@ use subset::{adjacency, select_global, Subset};
 const NOISE_FLOOR: f64 = 1e-9;
 /// Sampson residual scale from the median absolute residual of a Gaussian.
 const MAD_TO_SIGMA: f64 = 1.4826;
+/// Cauchy weight scale in robust standard deviations (95 % efficiency on Gaussian noise).
+const CAUCHY_SCALE: f64 = 2.385;
 
 /// Errors of the plane solver.
 #[derive(Debug, thiserror::Error)]
@@ -186,7 +191,7 @@ pub struct GlobalCoplanarity {
     pub rejected_curves: Vec<u32>,
 }
 
-fn median(mut x: Vec<f64>) -> Option<f64> {
+pub(crate) fn median(mut x: Vec<f64>) -> Option<f64> {
     if x.is_empty() {
         return None;
     }
@@ -198,10 +203,10 @@ fn median(mut x: Vec<f64>) -> Option<f64> {
 /// Stages 1–3: subset, coplanarity null space, robust rounds.
 ///
 /// Inner loop (iteratively reweighted least squares): solve the subset over every
-/// active crossing among its curves with weight `ω_k = g_k² / (1 + (e_k / (k σ))²)`,
-/// `g_k` the Sampson gradient factor and `e_k` the Sampson residual of the previous
-/// round (a Cauchy weight: wrong crossings fade out without ever removing a row, so the
-/// system keeps its rank), `σ = 1.4826 · median |e|`; until the set with `|e| ≤ k σ`
+/// active crossing among its curves with weight `ω_k = 1 / (|u|² (1 + (e_k / c σ)²))`,
+/// `c = 2.385` and `e_k` the Sampson residual of the previous round (a Cauchy weight:
+/// wrong crossings fade out without ever removing a row, so the system keeps its
+/// rank), `σ = 1.4826 · median |e|`; until the set with `|e| ≤ k σ`
 /// and `σ` settle. Outer loop: crossings beyond `k σ` are outliers; curves with most of
 /// their crossings out are rejected; the subset is pruned again over the inliers (a
 /// curve whose remaining crossings lie on one line must leave) and re-solved if it
@@ -229,9 +234,12 @@ pub fn robust_global(
         },
     );
     let mut prev: Vec<Option<Vector3<f64>>> = vec![None; n_curves];
-    let mut robust_weight = vec![1.0; cr.len()];
+    let mut robust_weight = match seed::consensus_weights(problem, active, &subset, params) {
+        Some((w, _)) => w,
+        None => vec![1.0; cr.len()],
+    };
     let k_out = params.outlier_mad_k;
-    for _outer in 0..8 {
+    for _outer in 0..30 {
         let n = subset.curves.len();
         if n < 4 {
             return Err(SolveError::TooFewPlanes {
@@ -244,6 +252,7 @@ pub fn robust_global(
         let candidates = Subset::from_curves(n_curves, subset.curves.clone(), cr, active).crossings;
         let mut last: Option<(nullspace::NullSpace, Vec<f64>, f64)> = None;
         let mut last_hard: Option<Vec<bool>> = None;
+        let mut was_settled = false;
         for _round in 0..params.robust_rounds.max(1) {
             let weights: Vec<f64> = candidates
                 .iter()
@@ -277,7 +286,7 @@ pub fn robust_global(
                 .collect();
             let sigma = (MAD_TO_SIGMA * median(resid.clone()).unwrap_or(0.0)).max(NOISE_FLOOR);
             for (&k, e) in candidates.iter().zip(&resid) {
-                let r = e / (k_out * sigma);
+                let r = e / (CAUCHY_SCALE * sigma);
                 robust_weight[k] = 1.0 / (1.0 + r * r);
             }
             for (c, v) in prev.iter_mut().enumerate() {
@@ -308,6 +317,7 @@ pub fn robust_global(
             });
             last = Some((ns, resid, sigma));
             last_hard = Some(hard);
+            was_settled = settled;
             if settled || needs_pruning {
                 break;
             }
@@ -331,8 +341,9 @@ pub fn robust_global(
                 }
             }
         }
+        // Judged only on a settled solution: a half-way one misfits good curves too.
         for (i, &(tot, bad)) in count.iter().enumerate() {
-            if tot > 0 && bad as f64 > params.max_outlier_fraction * tot as f64 {
+            if was_settled && tot > 0 && bad as f64 > params.max_outlier_fraction * tot as f64 {
                 let c = subset.curves[i];
                 excluded[c as usize] = true;
                 rejected_curves.push(c);

@@ -403,4 +403,21 @@ mod tests {
             assert!(s.curves.contains(&(c ^ 1)), "partner of {c} missing");
         }
     }
+
+    #[test]
+    fn bend_needs_two_points_off_the_line() {
+        let line: Vec<[f64; 2]> = (0..10)
+            .map(|k| [-0.4 + 0.08 * k as f64, 0.1 + 0.03 * k as f64])
+            .collect();
+        assert!(bend(line.iter().copied()) < 1e-6);
+        // One point 0.1 off the line: left out, so still no bend.
+        let mut one = line.clone();
+        one.push([0.0, 0.35]);
+        assert!(bend(one.iter().copied()) < 1e-6);
+        // Two points off it: a bend of the order of their distance / sqrt(m).
+        let mut two = one.clone();
+        two.push([0.2, 0.1]);
+        let b = bend(two.iter().copied());
+        assert!(b > 0.01 && b < 0.1, "bend {b}");
+    }
 }

@@ -289,3 +289,137 @@ pub fn analytic_crossings(
     }
     out
 }
+
+/// A sphere seen from outside, a scanned object: its curves are strongly curved in the
+/// image, so every crossing of a curve is well off the line of the others.
+#[derive(Clone, Debug)]
+pub struct SphereScene {
+    pub centre: Vector3<f64>,
+    pub radius: f64,
+    /// Normalised image window `[x_min, x_max, y_min, y_max]`.
+    pub window: [f64; 4],
+}
+
+impl Default for SphereScene {
+    fn default() -> Self {
+        Self {
+            centre: Vector3::new(0.05, -0.02, 2.0),
+            radius: 0.7,
+            window: [-0.6, 0.6, -0.45, 0.45],
+        }
+    }
+}
+
+impl SphereScene {
+    /// The point of the sphere seen along the ray `(x, y, 1)`, if it hits.
+    pub fn point(&self, x: f64, y: f64) -> Option<Vector3<f64>> {
+        let r = Vector3::new(x, y, 1.0);
+        // |s r − C|² = R²: s² |r|² − 2 s r·C + |C|² − R² = 0, the nearer root.
+        let (a, b, c) = (
+            r.norm_squared(),
+            -2.0 * r.dot(&self.centre),
+            self.centre.norm_squared() - self.radius * self.radius,
+        );
+        let disc = b * b - 4.0 * a * c;
+        (disc >= 0.0).then(|| r * ((-b - disc.sqrt()) / (2.0 * a)))
+    }
+}
+
+/// Random crosses aimed at the sphere, as [`random_scan`] does for the room.
+pub fn random_sphere_scan(
+    spec: &ScanSpec,
+    sphere: &SphereScene,
+) -> (Vec<Vector3<f64>>, Vec<Option<u32>>) {
+    let mut rng = Rng::new(spec.seed);
+    let mut planes = Vec::with_capacity(2 * spec.num_crosses);
+    let [x0, x1, y0, y1] = sphere.window;
+    while planes.len() < 2 * spec.num_crosses {
+        let j = spec.projector_jitter;
+        let p = spec.projector_base
+            + Vector3::new(rng.uniform(-j, j), rng.uniform(-j, j), rng.uniform(-j, j));
+        let (tx, ty) = (rng.uniform(x0, x1), rng.uniform(y0, y1));
+        let Some(target) = sphere.point(tx, ty) else {
+            continue;
+        };
+        let axis = (target - p).normalize();
+        let e1 = axis.cross(&Vector3::y()).normalize();
+        let e2 = axis.cross(&e1);
+        let roll = rng.uniform(0.0, std::f64::consts::PI);
+        let n1 = e1 * roll.cos() + e2 * roll.sin();
+        let n2 = -e1 * roll.sin() + e2 * roll.cos();
+        if n1.dot(&p).abs() < spec.min_plane_offset || n2.dot(&p).abs() < spec.min_plane_offset {
+            continue;
+        }
+        planes.push(n1 / n1.dot(&p));
+        planes.push(n2 / n2.dot(&p));
+    }
+    let partner = (0..planes.len()).map(|i| Some((i ^ 1) as u32)).collect();
+    (planes, partner)
+}
+
+/// All crossings of the images of `planes` on the sphere (curve id = index): the points
+/// where the line of each pair of planes meets the visible hemisphere, in the window.
+pub fn sphere_crossings(
+    sphere: &SphereScene,
+    planes: &[Vector3<f64>],
+    min_sin_angle: f64,
+) -> Vec<Crossing> {
+    let [x0, x1, y0, y1] = sphere.window;
+    let mut out = Vec::new();
+    for i in 0..planes.len() {
+        for j in i + 1..planes.len() {
+            let (vi, vj) = (planes[i], planes[j]);
+            let d = vi.cross(&vj);
+            if d.norm_squared() < 1e-300 {
+                continue;
+            }
+            // A point on both planes: the one in the span of vi, vj.
+            let g = nalgebra::Matrix2::new(vi.dot(&vi), vi.dot(&vj), vi.dot(&vj), vj.dot(&vj));
+            let Some(ab) = g.lu().solve(&nalgebra::Vector2::new(1.0, 1.0)) else {
+                continue;
+            };
+            let x0p = vi * ab.x + vj * ab.y;
+            let q = x0p - sphere.centre;
+            let (a, b, c) = (
+                d.norm_squared(),
+                2.0 * d.dot(&q),
+                q.norm_squared() - sphere.radius * sphere.radius,
+            );
+            let disc = b * b - 4.0 * a * c;
+            if disc < 0.0 {
+                continue;
+            }
+            for sgn in [-1.0, 1.0] {
+                let x = x0p + d * ((-b + sgn * disc.sqrt()) / (2.0 * a));
+                // Only the hemisphere facing the camera is seen.
+                if x.z <= 0.0 || (x - sphere.centre).dot(&x) >= 0.0 {
+                    continue;
+                }
+                let u = [x.x / x.z, x.y / x.z];
+                if !(u[0] > x0 && u[0] < x1 && u[1] > y0 && u[1] < y1) {
+                    continue;
+                }
+                // Image tangents of both curves at u.
+                let tangent = |v: Vector3<f64>| {
+                    let t = v.cross(&(x - sphere.centre));
+                    [
+                        (t.x * x.z - x.x * t.z) / (x.z * x.z),
+                        (t.y * x.z - x.y * t.z) / (x.z * x.z),
+                    ]
+                };
+                let (ta, tb) = (tangent(vi), tangent(vj));
+                let sin = (ta[0] * tb[1] - ta[1] * tb[0]).abs()
+                    / (ta[0].hypot(ta[1]) * tb[0].hypot(tb[1]));
+                if sin >= min_sin_angle {
+                    out.push(Crossing {
+                        a: i as u32,
+                        b: j as u32,
+                        u,
+                        sin_angle: sin,
+                    });
+                }
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,67 @@
+//! Crossing search and the global plane solve on synthetic scans with known planes.
+//!
+//! `cargo bench --bench solve`. The scans come from `crossline::solve::synthetic`: a
+//! room seen from inside, random hand-held crosses.
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use crossline::intersect::find_crossings;
+use crossline::solve::synthetic::{analytic_crossings, curve_polyline, random_scan, ScanSpec};
+use crossline::solve::{solve, Problem, SolveParams};
+use std::hint::black_box;
+
+fn crossing_search(c: &mut Criterion) {
+    // 2000 curves of about 50 segments each.
+    let scan = random_scan(&ScanSpec {
+        num_crosses: 1000,
+        seed: 1,
+        ..ScanSpec::default()
+    });
+    let polylines: Vec<Vec<[f64; 2]>> = scan
+        .planes
+        .iter()
+        .filter_map(|v| curve_polyline(&scan.scene, v, 0.03))
+        .collect();
+    let refs: Vec<&[[f64; 2]]> = polylines.iter().map(|p| p.as_slice()).collect();
+    let segments: usize = refs.iter().map(|p| p.len() - 1).sum();
+    let found = find_crossings(&refs, 0.1).len();
+    eprintln!(
+        "crossing search: {} curves, {segments} segments, {found} crossings",
+        refs.len()
+    );
+    let mut group = c.benchmark_group("intersect");
+    group.sample_size(10);
+    group.bench_function("find_crossings_2000_curves", |b| {
+        b.iter(|| find_crossings(black_box(&refs), 0.1))
+    });
+    group.finish();
+}
+
+fn global_solve(c: &mut Criterion) {
+    // 400 planes, every crossing among them.
+    let scan = random_scan(&ScanSpec {
+        num_crosses: 200,
+        seed: 2,
+        ..ScanSpec::default()
+    });
+    let crossings = analytic_crossings(&scan.scene, &scan.planes, 0.1);
+    eprintln!(
+        "global solve: {} curves, {} crossings",
+        scan.planes.len(),
+        crossings.len()
+    );
+    let problem = Problem {
+        num_curves: scan.planes.len(),
+        crossings: &crossings,
+        partner: &scan.partner,
+    };
+    let params = SolveParams::default();
+    let mut group = c.benchmark_group("solve");
+    group.sample_size(10);
+    group.bench_function("solve_400_planes", |b| {
+        b.iter(|| solve(black_box(&problem), &params).map(|s| s.global.len()))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, crossing_search, global_solve);
+criterion_main!(benches);
