@@ -29,7 +29,7 @@ pub struct TriangulateParams {
 impl Default for TriangulateParams {
     fn default() -> Self {
         Self {
-            min_ray_plane_angle_deg: 3.0,
+            min_ray_plane_angle_deg: 0.5,
         }
     }
 }

@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::cloud::TriangulateParams;
 use crate::extract::ExtractParams;
+use crate::intersect::IntersectParams;
 use crate::reconstruct::BackgroundParams;
 use crate::solve::SolveParams;
 
@@ -20,6 +21,7 @@ use crate::solve::SolveParams;
 pub struct Config {
     pub background: BackgroundParams,
     pub extract: ExtractParams,
+    pub intersect: IntersectParams,
     pub solve: SolveParams,
     pub triangulate: TriangulateParams,
 }

@@ -242,6 +242,173 @@ pub fn find_crossings(polylines: &[&[[f64; 2]]], min_sin_angle: f64) -> Vec<Cros
     out
 }
 
+/// Settings of the crossing stage: the `[intersect]` table of `crossline.toml`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct IntersectParams {
+    /// Crossings found on the simplified polylines are refined from the dense curve
+    /// points within this radius (pixels); 0 keeps the polyline crossings.
+    pub refine_radius_px: f64,
+}
+
+impl Default for IntersectParams {
+    fn default() -> Self {
+        Self {
+            refine_radius_px: 6.0,
+        }
+    }
+}
+
+/// A curve's dense points near a crossing, fitted by a quadratic in a local frame:
+/// `p(t) = origin + t·dir + (c0 + c1·t + c2·t²)·normal`.
+#[derive(Clone, Copy, Debug)]
+struct LocalQuadratic {
+    origin: [f64; 2],
+    dir: [f64; 2],
+    normal: [f64; 2],
+    c: [f64; 3],
+}
+
+impl LocalQuadratic {
+    /// Least-squares fit to `points` (at least 5, spread along the curve); `None` when
+    /// they are too few or degenerate.
+    fn fit(points: &[[f64; 2]]) -> Option<Self> {
+        if points.len() < 5 {
+            return None;
+        }
+        let n = points.len() as f64;
+        let (mut mx, mut my) = (0.0, 0.0);
+        for p in points {
+            mx += p[0];
+            my += p[1];
+        }
+        let origin = [mx / n, my / n];
+        // Principal direction of the points.
+        let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+        for p in points {
+            let (dx, dy) = (p[0] - origin[0], p[1] - origin[1]);
+            sxx += dx * dx;
+            sxy += dx * dy;
+            syy += dy * dy;
+        }
+        let theta = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+        let dir = [theta.cos(), theta.sin()];
+        let normal = [-dir[1], dir[0]];
+        // Normal equations of s = c0 + c1 t + c2 t², in scaled t for conditioning.
+        let scale = (sxx + syy).sqrt() / n.sqrt();
+        if scale <= 0.0 {
+            return None;
+        }
+        let mut m = nalgebra::Matrix3::<f64>::zeros();
+        let mut r = nalgebra::Vector3::<f64>::zeros();
+        for p in points {
+            let (dx, dy) = (p[0] - origin[0], p[1] - origin[1]);
+            let t = (dx * dir[0] + dy * dir[1]) / scale;
+            let s = dx * normal[0] + dy * normal[1];
+            let b = nalgebra::Vector3::new(1.0, t, t * t);
+            m += b * b.transpose();
+            r += b * s;
+        }
+        let c = m.try_inverse()? * r;
+        Some(Self {
+            origin,
+            dir,
+            normal,
+            c: [c[0], c[1] / scale, c[2] / (scale * scale)],
+        })
+    }
+
+    fn at(&self, t: f64) -> [f64; 2] {
+        let s = self.c[0] + t * (self.c[1] + t * self.c[2]);
+        [
+            self.origin[0] + t * self.dir[0] + s * self.normal[0],
+            self.origin[1] + t * self.dir[1] + s * self.normal[1],
+        ]
+    }
+
+    fn tangent(&self, t: f64) -> [f64; 2] {
+        let ds = self.c[1] + 2.0 * self.c[2] * t;
+        [
+            self.dir[0] + ds * self.normal[0],
+            self.dir[1] + ds * self.normal[1],
+        ]
+    }
+
+    fn param_of(&self, p: [f64; 2]) -> f64 {
+        (p[0] - self.origin[0]) * self.dir[0] + (p[1] - self.origin[1]) * self.dir[1]
+    }
+}
+
+/// The dense points of a curve within `radius` of `near`, as one contiguous run along
+/// the curve around its point closest to `near` (so a curve passing twice near the same
+/// place contributes only the pass that crosses there).
+pub fn dense_run(points: &[[f64; 2]], near: [f64; 2], radius: f64) -> &[[f64; 2]] {
+    let d2 = |p: &[f64; 2]| (p[0] - near[0]).powi(2) + (p[1] - near[1]).powi(2);
+    let Some((closest, _)) = points
+        .iter()
+        .enumerate()
+        .min_by(|a, b| d2(a.1).total_cmp(&d2(b.1)))
+    else {
+        return &[];
+    };
+    let r2 = radius * radius;
+    if d2(&points[closest]) > r2 {
+        return &[];
+    }
+    let mut lo = closest;
+    while lo > 0 && d2(&points[lo - 1]) <= r2 {
+        lo -= 1;
+    }
+    let mut hi = closest;
+    while hi + 1 < points.len() && d2(&points[hi + 1]) <= r2 {
+        hi += 1;
+    }
+    &points[lo..=hi]
+}
+
+/// Refines a crossing found on simplified polylines from the curves' dense points: a
+/// local quadratic is fitted to each curve's points within `radius` of the crossing and
+/// the two fits are intersected (Newton's method from `u`). Douglas–Peucker polylines
+/// are off their curve by up to their tolerance; the dense points are not, so this
+/// brings crossings to the detector's own sub-pixel accuracy.
+///
+/// `None` when a fit is impossible (too few points) or the refined point moves more
+/// than `radius` (the fits do not meet near the crossing): keep `u` then.
+pub fn refine_crossing(
+    a: &[[f64; 2]],
+    b: &[[f64; 2]],
+    u: [f64; 2],
+    radius: f64,
+) -> Option<[f64; 2]> {
+    let fa = LocalQuadratic::fit(dense_run(a, u, radius))?;
+    let fb = LocalQuadratic::fit(dense_run(b, u, radius))?;
+    let (mut t, mut s) = (fa.param_of(u), fb.param_of(u));
+    for _ in 0..8 {
+        let (pa, pb) = (fa.at(t), fb.at(s));
+        let (ta, tb) = (fa.tangent(t), fb.tangent(s));
+        // pa(t) − pb(s) = 0: Jacobian [ta, −tb].
+        let (ex, ey) = (pa[0] - pb[0], pa[1] - pb[1]);
+        let det = ta[0] * (-tb[1]) - (-tb[0]) * ta[1];
+        if det.abs() < 1e-12 {
+            return None;
+        }
+        let dt = (ex * (-tb[1]) - (-tb[0]) * ey) / det;
+        let ds = (ta[0] * ey - ta[1] * ex) / det;
+        t -= dt;
+        s -= ds;
+        if dt.abs() + ds.abs() < 1e-15 {
+            break;
+        }
+    }
+    let p = fa.at(t);
+    let q = fb.at(s);
+    let moved = (p[0] - u[0]).hypot(p[1] - u[1]);
+    if !(moved <= radius) || (p[0] - q[0]).hypot(p[1] - q[1]) > 1e-9 * (1.0 + radius) {
+        return None;
+    }
+    Some(p)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -324,5 +491,75 @@ mod tests {
         assert_eq!(c.len(), 1, "parallel verticals do not cross");
         assert_eq!((c[0].a, c[0].b), (5, 9));
         assert_eq!(index.num_segments(), 3);
+    }
+
+    #[test]
+    fn refined_crossings_reach_the_dense_curves_accuracy() {
+        // Two circles of known intersection, densely sampled at 1 px steps (f = 1000),
+        // then simplified like the extractor does: the polyline crossing is off by up
+        // to the tolerance, the refined one is exact to the fit's model error.
+        let f = 1000.0;
+        let circle = |cx: f64, cy: f64, r: f64, a0: f64, a1: f64| -> Vec<[f64; 2]> {
+            let n = ((a1 - a0) * r * f).abs().ceil() as usize;
+            (0..=n)
+                .map(|i| {
+                    let a = a0 + (a1 - a0) * i as f64 / n as f64;
+                    [cx + r * a.cos(), cy + r * a.sin()]
+                })
+                .collect()
+        };
+        let a = circle(0.0, 0.0, 0.3, -0.5, 1.5);
+        let b = circle(0.35, 0.1, 0.25, 1.2, 4.2);
+        // Analytic intersection of the two circles (the one inside both arcs).
+        let (d, r0, r1) = ((0.35f64).hypot(0.1), 0.3, 0.25);
+        let l = (r0 * r0 - r1 * r1 + d * d) / (2.0 * d);
+        let h = (r0 * r0 - l * l).sqrt();
+        let (ex, ey) = (0.35 / d, 0.1 / d);
+        let candidates = [
+            [l * ex - h * ey, l * ey + h * ex],
+            [l * ex + h * ey, l * ey - h * ex],
+        ];
+        // Every 25th point: chords of 25 px on radii of 250-300 px stand off the arc
+        // by up to 0.3 px, like a Douglas-Peucker polyline of that tolerance.
+        let simplify = |pts: &[[f64; 2]]| -> Vec<[f64; 2]> {
+            let mut out: Vec<[f64; 2]> = pts.iter().step_by(25).copied().collect();
+            if let Some(last) = pts.last() {
+                out.push(*last);
+            }
+            out
+        };
+        let (pa, pb) = (simplify(&a), simplify(&b));
+        let found = find_crossings(&[&pa, &pb], 0.1);
+        assert_eq!(found.len(), 1, "{found:?}");
+        let u = found[0].u;
+        let truth = *candidates
+            .iter()
+            .min_by(|p, q| {
+                (p[0] - u[0])
+                    .hypot(p[1] - u[1])
+                    .total_cmp(&(q[0] - u[0]).hypot(q[1] - u[1]))
+            })
+            .expect("two candidates");
+        let before = (u[0] - truth[0]).hypot(u[1] - truth[1]) * f;
+        let refined = refine_crossing(&a, &b, u, 6.0 / f).expect("refines");
+        let after = (refined[0] - truth[0]).hypot(refined[1] - truth[1]) * f;
+        assert!(
+            after < 0.002,
+            "refined crossing off by {after} px (polyline: {before} px)"
+        );
+        assert!(
+            after < before,
+            "refinement made it worse: {after} vs {before} px"
+        );
+    }
+
+    #[test]
+    fn refinement_refuses_curves_that_do_not_meet_nearby() {
+        let line = |y: f64| -> Vec<[f64; 2]> { (0..40).map(|i| [i as f64 * 1e-3, y]).collect() };
+        // Parallel dense runs: no intersection.
+        assert!(refine_crossing(&line(0.0), &line(0.001), [0.02, 0.0], 0.006).is_none());
+        // Too few points near the crossing.
+        let vertical: Vec<[f64; 2]> = (0..3).map(|i| [0.02, i as f64 * 1e-3]).collect();
+        assert!(refine_crossing(&line(0.0), &vertical, [0.02, 0.0], 0.006).is_none());
     }
 }

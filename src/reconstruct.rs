@@ -194,6 +194,22 @@ struct PlaneCurves {
     curves: Vec<Curve>,
 }
 
+impl PlaneCurves {
+    /// The dense points of the curve (of this plane) passing closest to `u`.
+    fn dense_near(&self, u: [f64; 2]) -> &[[f64; 2]] {
+        let d2 = |p: &[f64; 2]| (p[0] - u[0]).powi(2) + (p[1] - u[1]).powi(2);
+        self.curves
+            .iter()
+            .map(|c| {
+                let best = c.points.iter().map(d2).fold(f64::INFINITY, f64::min);
+                (best, c.points.as_slice())
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, points)| points)
+            .unwrap_or(&[])
+    }
+}
+
 /// Where the planes come from.
 #[derive(Clone, Copy, Debug)]
 pub enum PlaneSource<'a> {
@@ -334,6 +350,16 @@ pub fn reconstruct_curves(
         for curve in &plane.curves {
             crossings.extend(index.insert(id as u32, &curve.polyline));
         }
+    }
+    let radius = config.intersect.refine_radius_px / camera.fx.max(camera.fy);
+    if radius > 0.0 {
+        crossings.par_iter_mut().for_each(|c| {
+            let a = planes[c.a as usize].dense_near(c.u);
+            let b = planes[c.b as usize].dense_near(c.u);
+            if let Some(u) = crate::intersect::refine_crossing(a, b, c.u, radius) {
+                c.u = u;
+            }
+        });
     }
     times.intersect_s = t.elapsed().as_secs_f64();
 
