@@ -84,7 +84,7 @@
 //! # Simulation folder (`write_sim_dir`, format version 1)
 //! | file | content |
 //! |---|---|
-//! | `frame_000000.png` … | RGB frames, 8 bit |
+//! | `frame_000000.png` … | RGB frames, 8 bit (`.jpg` with `--format jpeg`) |
 //! | `background.png` | the same view with the lasers off (own noise) |
 //! | `camera.yml`, `camera_info.yaml` | the camera, OpenCV and ROS formats |
 //! | `scene.toml` | the scene as rendered (overrides applied), re-loadable |
@@ -301,12 +301,46 @@ pub fn write_png_fast(path: &Path, img: &RgbImage) -> Result<(), SimError> {
     std::fs::write(path, &buf).map_err(io_err(path))
 }
 
-/// Renders `frames` frames and writes the whole simulation folder (see the module doc).
-/// `progress` is called (from any thread) with the number of frames written so far.
+/// How frames are stored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FrameFormat {
+    /// Lossless `frame_NNNNNN.png`.
+    Png,
+    /// `frame_NNNNNN.jpg` at this quality (1-100): what an MJPEG camera delivers, and
+    /// ten times smaller, for fixtures.
+    Jpeg { quality: u8 },
+}
+
+/// Encodes an image as JPEG and writes it.
+pub fn write_jpeg(path: &Path, img: &RgbImage, quality: u8) -> Result<(), SimError> {
+    let mut buf = Vec::with_capacity(img.as_raw().len() / 8);
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut buf, quality.clamp(1, 100))
+        .encode_image(img)
+        .map_err(|source| SimError::Image {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    std::fs::write(path, &buf).map_err(io_err(path))
+}
+
+/// Renders `frames` frames and writes the whole simulation folder (see the module doc)
+/// with PNG frames. `progress` is called (from any thread) with the number of frames
+/// written so far.
 pub fn write_sim_dir(
     sim: &Simulator,
     frames: usize,
     out: &Path,
+    progress: impl Fn(usize) + Sync,
+) -> Result<SimSummary, SimError> {
+    write_sim_dir_as(sim, frames, out, FrameFormat::Png, progress)
+}
+
+/// [`write_sim_dir`] with a choice of frame format.
+pub fn write_sim_dir_as(
+    sim: &Simulator,
+    frames: usize,
+    out: &Path,
+    format: FrameFormat,
     progress: impl Fn(usize) + Sync,
 ) -> Result<SimSummary, SimError> {
     std::fs::create_dir_all(out).map_err(io_err(out))?;
@@ -331,7 +365,14 @@ pub fn write_sim_dir(
             || (vec![0u8; n], RgbImage::new(cam.width, cam.height)),
             |(mut lit, mut img), i| {
                 sim.render_frame_into(i, &mut img, Some(&mut lit));
-                write_png_fast(&out.join(format!("frame_{i:06}.png")), &img)?;
+                match format {
+                    FrameFormat::Png => {
+                        write_png_fast(&out.join(format!("frame_{i:06}.png")), &img)?
+                    }
+                    FrameFormat::Jpeg { quality } => {
+                        write_jpeg(&out.join(format!("frame_{i:06}.jpg")), &img, quality)?
+                    }
+                }
                 let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
                 progress(d);
                 Ok::<_, SimError>((lit, img))

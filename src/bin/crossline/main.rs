@@ -7,6 +7,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod compare;
+mod demo;
 mod extract;
 mod reconstruct;
 mod simulate;
@@ -14,9 +15,10 @@ mod simulate;
 /// Turn a fixed camera and a hand-held cross line laser into a 3D scanner, with no
 /// calibration of the laser.
 ///
-/// A typical first session, without a camera:
+/// Try it without a camera: `crossline demo` simulates, reconstructs and checks a
+/// scan of a built-in scene. By hand:
 ///
-///   crossline simulate --scene room --frames 120 --out sim
+///   crossline simulate --scene room --frames 200 --out sim
 ///   crossline reconstruct --input sim --camera sim/camera.yml --out cloud.ply
 ///   crossline compare cloud.ply --truth sim
 #[derive(Parser)]
@@ -31,6 +33,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    Demo(demo::Args),
     Simulate(simulate::Args),
     Compare(compare::Args),
     Extract(extract::Args),
@@ -41,6 +44,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     init_logging(cli.verbose);
     let result = match cli.command {
+        Command::Demo(args) => demo::run(args),
         Command::Simulate(args) => simulate::run(args),
         Command::Compare(args) => compare::run(args),
         Command::Extract(args) => extract::run(args),

@@ -7,8 +7,8 @@ use std::time::Instant;
 
 use anyhow::{bail, Context};
 use crossline::simulate::{
-    builtin_scene, load_scene_file, write_sim_dir, LaserColour, Medium, SimParams, Simulator,
-    BUILTIN_SCENES,
+    builtin_scene, load_scene_file, write_sim_dir_as, FrameFormat, LaserColour, Medium, SimParams,
+    Simulator, BUILTIN_SCENES,
 };
 
 /// Render the image sequence a fixed camera would record of a hand-held cross line
@@ -43,8 +43,10 @@ pub struct Args {
     /// Output folder (created if missing; existing files are overwritten).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
-    /// Frame file format. Only `png` for now (`dump` will come with the daemon).
-    #[arg(long, default_value = "png")]
+    /// Frame file format: `png` (lossless) or `jpeg` (frame_NNNNNN.jpg at
+    /// --jpeg-quality, default 92: what an MJPEG camera delivers). `dump` comes with
+    /// the daemon.
+    #[arg(long, default_value = "png", value_name = "png|jpeg")]
     format: String,
     /// Water turbidity: > 0 renders under water (attenuation, forward scatter, glow
     /// of the laser sheets) with the scene's scattering scaled by T; 1 is the scene's
@@ -54,8 +56,9 @@ pub struct Args {
     /// Standard deviation of the Gaussian sensor noise, grey levels (0 = none).
     #[arg(long, value_name = "SIGMA", default_value_t = 2.0)]
     noise: f64,
-    /// Pass every image through JPEG compression of quality Q (1-100) before saving
-    /// it as PNG, to add compression artefacts.
+    /// JPEG quality Q (1-100): with --format png, every image passes through JPEG
+    /// compression before it is saved as PNG, to add compression artefacts; with
+    /// --format jpeg, the quality of the JPEG frames.
     #[arg(long, value_name = "Q", value_parser = clap::value_parser!(u8).range(1..=100))]
     jpeg_quality: Option<u8>,
     /// Image width in pixels (overrides the scene; the field of view is kept).
@@ -73,12 +76,15 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    if args.format != "png" {
-        bail!(
-            "--format {}: only `png` is supported (the `dump` format comes with the daemon)",
-            args.format
-        );
-    }
+    let format = match args.format.as_str() {
+        "png" => FrameFormat::Png,
+        "jpeg" | "jpg" => FrameFormat::Jpeg {
+            quality: args.jpeg_quality.unwrap_or(92),
+        },
+        other => bail!(
+            "--format {other}: expected png or jpeg (the `dump` format comes with the daemon)"
+        ),
+    };
     let mut spec = match builtin_scene(&args.scene) {
         Some(spec) => spec,
         None => {
@@ -126,7 +132,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let params = SimParams {
         seed: args.seed,
         noise_sigma: args.noise,
-        jpeg_quality: args.jpeg_quality,
+        // With JPEG frames the compression happens once, when they are written.
+        jpeg_quality: match format {
+            FrameFormat::Png => args.jpeg_quality,
+            FrameFormat::Jpeg { .. } => None,
+        },
     };
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(n) = args.threads {
@@ -150,8 +160,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let summary = pool.install(|| {
         let sim = Simulator::new(&spec, &params).context("preparing the scene")?;
         tracing::debug!("scene ray-cast in {:.2} s", start.elapsed().as_secs_f64());
-        write_sim_dir(&sim, args.frames, &args.out, |n| bar.set_position(n as u64))
-            .with_context(|| format!("writing the simulation to {}", args.out.display()))
+        write_sim_dir_as(&sim, args.frames, &args.out, format, |n| {
+            bar.set_position(n as u64)
+        })
+        .with_context(|| format!("writing the simulation to {}", args.out.display()))
     })?;
     bar.finish_and_clear();
     let secs = start.elapsed().as_secs_f64();
