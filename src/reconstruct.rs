@@ -69,13 +69,13 @@ pub enum ReconstructError {
         want_w: u32,
         want_h: u32,
     },
-    #[error("extraction: {0}")]
+    #[error("extraction")]
     Extract(#[from] crate::extract::ExtractError),
-    #[error("solving the planes: {0}")]
+    #[error("solving the planes")]
     Solve(#[from] solve::SolveError),
     #[error("internal error: {0}")]
     Internal(&'static str),
-    #[error("scale: {0}")]
+    #[error("fixing the scale")]
     Scale(#[from] cloud::ScaleError),
 }
 

@@ -1,3 +1,296 @@
 //! Integration tests: the real `crossline` binary on real files.
 
 mod util;
+
+use std::path::Path;
+
+use crossline::ply::{read_ply, write_ply, Cloud};
+use serde_json::Value;
+use util::{crossline, fixtures, run_ok, stderr_of_failure};
+
+fn json_of(stdout: &[u8]) -> Value {
+    serde_json::from_slice(stdout).expect("valid JSON on stdout")
+}
+
+#[test]
+fn simulate_writes_a_complete_folder_deterministically_on_any_thread_count() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let run = |threads: &str, out: &Path| {
+        run_ok(
+            crossline()
+                .args([
+                    "simulate",
+                    "--scene",
+                    "bricks",
+                    "--frames",
+                    "4",
+                    "--width",
+                    "192",
+                    "--seed",
+                    "11",
+                    "--threads",
+                    threads,
+                    "--out",
+                ])
+                .arg(out),
+        );
+    };
+    let (a, b) = (tmp.path().join("one"), tmp.path().join("two"));
+    run("1", &a);
+    run("2", &b);
+    for name in [
+        "frame_000000.png",
+        "frame_000003.png",
+        "background.png",
+        "camera.yml",
+        "camera_info.yaml",
+        "scene.toml",
+        "truth.json",
+        "depth.pfm",
+        "lit.png",
+        "truth.ply",
+    ] {
+        assert!(a.join(name).is_file(), "{name} missing");
+    }
+    for i in 0..4 {
+        let name = format!("frame_{i:06}.png");
+        let (x, y) = (
+            std::fs::read(a.join(&name)).expect("frame"),
+            std::fs::read(b.join(&name)).expect("frame"),
+        );
+        assert!(x == y, "{name} differs between 1 and 2 threads");
+    }
+    // The camera file it writes is read back by the readers reconstruct uses.
+    let cam = crossline::camera_file::load(&a.join("camera.yml")).expect("opencv yaml");
+    let ros = crossline::camera_file::load(&a.join("camera_info.yaml")).expect("ros yaml");
+    assert_eq!(cam, ros);
+    assert_eq!(cam.width, 192);
+    // The truth: orthogonal planes, one entry per frame.
+    let truth: Value =
+        serde_json::from_str(&std::fs::read_to_string(a.join("truth.json")).expect("truth"))
+            .expect("json");
+    let frames = truth["frames"].as_array().expect("frames");
+    assert_eq!(frames.len(), 4);
+    for f in frames {
+        let p: Vec<Vec<f64>> = serde_json::from_value(f["planes"].clone()).expect("planes");
+        let dot: f64 = (0..3).map(|k| p[0][k] * p[1][k]).sum();
+        let norms = (0..3).map(|k| p[0][k] * p[0][k]).sum::<f64>().sqrt()
+            * (0..3).map(|k| p[1][k] * p[1][k]).sum::<f64>().sqrt();
+        assert!((dot / norms).abs() < 1e-9, "planes not orthogonal: {p:?}");
+    }
+    let ply = read_ply(&a.join("truth.ply")).expect("truth cloud");
+    assert!(
+        ply.len() > 192 * 108 / 2,
+        "truth cloud has {} points",
+        ply.len()
+    );
+}
+
+#[test]
+fn reconstruct_then_compare_on_the_fixture() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let sim = fixtures().join("sim-room");
+    let cloud = tmp.path().join("cloud.ply");
+    let report = tmp.path().join("report.json");
+    run_ok(
+        crossline()
+            .args(["reconstruct", "--input"])
+            .arg(&sim)
+            .arg("--camera")
+            .arg(sim.join("camera.yml"))
+            .arg("--out")
+            .arg(&cloud)
+            .arg("--report")
+            .arg(&report),
+    );
+    let rep: Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    assert_eq!(rep["version"], 1);
+    assert_eq!(rep["frames"], 60);
+    assert!(rep["crossings"].as_u64().expect("crossings") > 100);
+    assert!(rep["planes_solved"].as_u64().expect("solved") >= 30);
+    // The PLY has every attribute, aligned, and its median depth is 1 by default.
+    let ply = read_ply(&cloud).expect("cloud");
+    assert_eq!(rep["points"].as_u64(), Some(ply.len() as u64));
+    assert!(ply.len() > 5000);
+    assert_eq!(ply.colors.as_ref().map(Vec::len), Some(ply.len()));
+    assert_eq!(ply.frames.as_ref().map(Vec::len), Some(ply.len()));
+    assert!(ply.frames.iter().flatten().all(|&f| f < 60));
+    assert!(ply.lasers.iter().flatten().all(|&l| l < 2));
+    let mut z: Vec<f32> = ply.points.iter().map(|p| p[2]).collect();
+    z.sort_by(f32::total_cmp);
+    assert!(
+        (z[z.len() / 2] - 1.0).abs() < 1e-3,
+        "median depth {}",
+        z[z.len() / 2]
+    );
+
+    let out = run_ok(
+        crossline()
+            .arg("compare")
+            .arg(&cloud)
+            .arg("--truth")
+            .arg(&sim)
+            .arg("--json"),
+    );
+    let cmp = json_of(&out.stdout);
+    assert_eq!(cmp["mode"], "truth");
+    let truth = &cmp["truth"];
+    let median = truth["relative_error"]["median"].as_f64().expect("median");
+    // A 640x360 JPEG scan of 60 frames: far from the full-resolution figures, but a
+    // wrong plane solution is off by tens of percent.
+    assert!(median < 0.03, "median relative depth error {median}");
+    let coverage = truth["coverage"]["fraction"].as_f64().expect("coverage");
+    assert!(coverage > 0.5, "coverage {coverage}");
+    // The room's ground truth is at metric scale; the cloud's median depth is 1.
+    let scale = truth["scale"].as_f64().expect("scale");
+    assert!(scale > 2.0 && scale < 6.0, "scale {scale}");
+}
+
+/// Points on a sphere and a wall, in front of the camera.
+fn analytic_cloud() -> Cloud {
+    let mut points = Vec::new();
+    for i in 0..60 {
+        for j in 0..60 {
+            let (a, b) = (i as f32 / 60.0 * 6.283, j as f32 / 60.0 * 3.1416);
+            points.push([
+                0.3 * a.cos() * b.sin(),
+                0.3 * a.sin() * b.sin(),
+                2.0 + 0.3 * b.cos(),
+            ]);
+            points.push([i as f32 / 30.0 - 1.0, j as f32 / 30.0 - 1.0, 3.0]);
+        }
+    }
+    Cloud {
+        points,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn compare_recovers_a_known_scale_and_offset() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let reference = analytic_cloud();
+    let scaled = Cloud {
+        points: reference
+            .points
+            .iter()
+            .map(|p| p.map(|c| c * 1.6))
+            .collect(),
+        ..Default::default()
+    };
+    let (ref_path, cloud_path) = (tmp.path().join("ref.ply"), tmp.path().join("cloud.ply"));
+    write_ply(&ref_path, &reference, &[]).expect("write");
+    write_ply(&cloud_path, &scaled, &[]).expect("write");
+    let out = run_ok(
+        crossline()
+            .arg("compare")
+            .arg(&cloud_path)
+            .arg("--reference")
+            .arg(&ref_path)
+            .args(["--align", "scale", "--json"]),
+    );
+    let rep = json_of(&out.stdout);
+    let s = rep["alignment"]["scale"].as_f64().expect("scale");
+    assert!((s - 1.0 / 1.6).abs() < 1e-3, "scale {s}");
+    assert!(rep["distances"]["median"].as_f64().expect("median") < 1e-4);
+
+    // Without alignment the reported distance is the offset that was added.
+    let shifted = Cloud {
+        points: reference
+            .points
+            .iter()
+            .map(|p| [p[0], p[1], p[2] - 0.01])
+            .collect(),
+        ..Default::default()
+    };
+    write_ply(&cloud_path, &shifted, &[]).expect("write");
+    let out = run_ok(
+        crossline()
+            .arg("compare")
+            .arg(&cloud_path)
+            .arg("--reference")
+            .arg(&ref_path)
+            .args(["--align", "none", "--json"]),
+    );
+    let rep = json_of(&out.stdout);
+    // Wall points moved along the wall's normal by exactly 0.01.
+    let p95 = rep["distances"]["p95"].as_f64().expect("p95");
+    assert!((p95 - 0.01).abs() < 1e-4, "p95 distance {p95}");
+}
+
+#[test]
+fn bad_inputs_are_named_in_the_error() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let sim = fixtures().join("sim-room");
+    // A missing camera file.
+    let err = stderr_of_failure(
+        crossline()
+            .args(["reconstruct", "--input"])
+            .arg(&sim)
+            .args(["--camera", "no-such-camera.yml", "--out"])
+            .arg(tmp.path().join("x.ply")),
+    );
+    assert!(err.contains("no-such-camera.yml"), "{err}");
+    // A camera file with a broken matrix: file and key.
+    let bad = tmp.path().join("bad.yml");
+    let text = std::fs::read_to_string(sim.join("camera.yml")).expect("camera");
+    std::fs::write(&bad, text.replace("cols: 3", "cols: 4")).expect("write");
+    let err = stderr_of_failure(
+        crossline()
+            .args(["reconstruct", "--input"])
+            .arg(&sim)
+            .arg("--camera")
+            .arg(&bad)
+            .arg("--out")
+            .arg(tmp.path().join("x.ply")),
+    );
+    assert!(
+        err.contains("bad.yml") && err.contains("camera_matrix"),
+        "{err}"
+    );
+    // A config key that does not exist: file, line and key.
+    let cfg = tmp.path().join("c.toml");
+    std::fs::write(&cfg, "[solve]\nmax_global_plane = 3\n").expect("write");
+    let err = stderr_of_failure(
+        crossline()
+            .args(["reconstruct", "--input"])
+            .arg(&sim)
+            .arg("--camera")
+            .arg(sim.join("camera.yml"))
+            .arg("--config")
+            .arg(&cfg)
+            .arg("--out")
+            .arg(tmp.path().join("x.ply")),
+    );
+    assert!(
+        err.contains("c.toml:2") && err.contains("max_global_plane"),
+        "{err}"
+    );
+    // A truncated PLY.
+    let ply = tmp.path().join("t.ply");
+    write_ply(&ply, &analytic_cloud(), &[]).expect("write");
+    let bytes = std::fs::read(&ply).expect("read");
+    std::fs::write(&ply, &bytes[..bytes.len() - 100]).expect("write");
+    let err = stderr_of_failure(
+        crossline()
+            .arg("compare")
+            .arg(&ply)
+            .arg("--reference")
+            .arg(&ply),
+    );
+    assert!(err.contains("t.ply") && err.contains("truncated"), "{err}");
+    // A folder with no frames.
+    let empty = tmp.path().join("empty");
+    std::fs::create_dir(&empty).expect("mkdir");
+    let err = stderr_of_failure(
+        crossline()
+            .args(["reconstruct", "--input"])
+            .arg(&empty)
+            .arg("--camera")
+            .arg(sim.join("camera.yml"))
+            .arg("--out")
+            .arg(tmp.path().join("x.ply")),
+    );
+    assert!(err.contains("no frames"), "{err}");
+}

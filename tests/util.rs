@@ -14,3 +14,30 @@ pub fn crossline() -> Command {
 pub fn fixtures() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures")
 }
+
+/// Runs a command that must succeed; on failure, panics with its output.
+pub fn run_ok(cmd: &mut Command) -> std::process::Output {
+    let out = cmd.output().expect("spawn crossline");
+    assert!(
+        out.status.success(),
+        "{cmd:?} failed ({}):\n{}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+/// Runs a command that must fail cleanly (exit code 1, not a panic) and returns its
+/// standard error.
+pub fn stderr_of_failure(cmd: &mut Command) -> String {
+    let out = cmd.output().expect("spawn crossline");
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "{cmd:?}: expected a clean failure:\n{err}"
+    );
+    assert!(!err.contains("panicked"), "{cmd:?} panicked:\n{err}");
+    err
+}

@@ -49,7 +49,7 @@ pub enum CompareError {
     EmptyReference,
     #[error("the reference has more than 4294967295 points")]
     TooManyPoints,
-    #[error("alignment failed: {0}")]
+    #[error("alignment failed")]
     Align(#[from] AlignError),
 }
 
