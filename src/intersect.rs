@@ -403,7 +403,10 @@ pub fn refine_crossing(
     let p = fa.at(t);
     let q = fb.at(s);
     let moved = (p[0] - u[0]).hypot(p[1] - u[1]);
-    if !(moved <= radius) || (p[0] - q[0]).hypot(p[1] - q[1]) > 1e-9 * (1.0 + radius) {
+    if !moved.is_finite()
+        || moved > radius
+        || (p[0] - q[0]).hypot(p[1] - q[1]) > 1e-9 * (1.0 + radius)
+    {
         return None;
     }
     Some(p)

@@ -152,7 +152,10 @@ fn analytic_cloud() -> Cloud {
     let mut points = Vec::new();
     for i in 0..60 {
         for j in 0..60 {
-            let (a, b) = (i as f32 / 60.0 * 6.283, j as f32 / 60.0 * 3.1416);
+            let (a, b) = (
+                i as f32 / 60.0 * std::f32::consts::TAU,
+                j as f32 / 60.0 * std::f32::consts::PI,
+            );
             points.push([
                 0.3 * a.cos() * b.sin(),
                 0.3 * a.sin() * b.sin(),

@@ -208,6 +208,22 @@ pub fn coverage(points: &[[f32; 3]], camera: &Camera, lit: &[bool], radius_px: f
     }
 }
 
+/// A folder written by `crossline simulate` is a ground truth: exact ray casting in its
+/// scene, and its lit mask.
+impl GroundTruth for crate::simulate::SimDir {
+    fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    fn true_depth(&self, ray_in_camera: &Vector3<f64>) -> Option<f64> {
+        self.scene.ray_depth(ray_in_camera)
+    }
+
+    fn lit_mask(&self) -> &[bool] {
+        &self.lit
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -351,21 +367,5 @@ mod tests {
             evaluate_against_truth(&[p], &truth, &TruthParams::default()),
             Err(TruthError::MaskSize { .. })
         ));
-    }
-}
-
-/// A folder written by `crossline simulate` is a ground truth: exact ray casting in its
-/// scene, and its lit mask.
-impl GroundTruth for crate::simulate::SimDir {
-    fn camera(&self) -> &Camera {
-        &self.camera
-    }
-
-    fn true_depth(&self, ray_in_camera: &Vector3<f64>) -> Option<f64> {
-        self.scene.ray_depth(ray_in_camera)
-    }
-
-    fn lit_mask(&self) -> &[bool] {
-        &self.lit
     }
 }
