@@ -339,6 +339,18 @@ impl LocalQuadratic {
     }
 }
 
+/// Distance from `p` to the segment `a`–`b`.
+pub fn point_segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+    let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+    let len2 = ex * ex + ey * ey;
+    let t = if len2 > 0.0 {
+        (((p[0] - a[0]) * ex + (p[1] - a[1]) * ey) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p[0] - a[0] - t * ex).hypot(p[1] - a[1] - t * ey)
+}
+
 /// The dense points of a curve within `radius` of `near`, as one contiguous run along
 /// the curve around its point closest to `near` (so a curve passing twice near the same
 /// place contributes only the pass that crosses there).

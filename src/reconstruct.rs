@@ -195,18 +195,40 @@ struct PlaneCurves {
 }
 
 impl PlaneCurves {
-    /// The dense points of the curve (of this plane) passing closest to `u`.
-    fn dense_near(&self, u: [f64; 2]) -> &[[f64; 2]] {
-        let d2 = |p: &[f64; 2]| (p[0] - u[0]).powi(2) + (p[1] - u[1]).powi(2);
-        self.curves
+    /// The dense points around `u` of the curve (of this plane) whose polyline passes
+    /// closest to `u`: the polyline's segment is found first (polylines are short),
+    /// then only the dense points between its two vertices, widened by `radius`, are
+    /// searched.
+    fn dense_near(&self, u: [f64; 2], radius: f64) -> &[[f64; 2]] {
+        let mut best: Option<(f64, &Curve, usize)> = None;
+        for curve in &self.curves {
+            for (k, seg) in curve.polyline.windows(2).enumerate() {
+                let d = crate::intersect::point_segment_distance(u, seg[0], seg[1]);
+                if best.is_none_or(|(b, _, _)| d < b) {
+                    best = Some((d, curve, k));
+                }
+            }
+        }
+        let Some((_, curve, k)) = best else {
+            return &[];
+        };
+        // Polyline vertices are copies of dense points, in order.
+        let (a, b) = (curve.polyline[k], curve.polyline[k + 1]);
+        let start = curve.points.iter().position(|p| *p == a).unwrap_or(0);
+        let end = curve.points[start..]
             .iter()
-            .map(|c| {
-                let best = c.points.iter().map(d2).fold(f64::INFINITY, f64::min);
-                (best, c.points.as_slice())
-            })
-            .min_by(|a, b| a.0.total_cmp(&b.0))
-            .map(|(_, points)| points)
-            .unwrap_or(&[])
+            .position(|p| *p == b)
+            .map_or(curve.points.len() - 1, |i| start + i);
+        let r2 = radius * radius;
+        let d2 = |p: &[f64; 2]| (p[0] - u[0]).powi(2) + (p[1] - u[1]).powi(2);
+        let (mut lo, mut hi) = (start, end);
+        while lo > 0 && d2(&curve.points[lo - 1]) <= r2 {
+            lo -= 1;
+        }
+        while hi + 1 < curve.points.len() && d2(&curve.points[hi + 1]) <= r2 {
+            hi += 1;
+        }
+        crate::intersect::dense_run(&curve.points[lo..=hi], u, radius)
     }
 }
 
@@ -354,8 +376,8 @@ pub fn reconstruct_curves(
     let radius = config.intersect.refine_radius_px / camera.fx.max(camera.fy);
     if radius > 0.0 {
         crossings.par_iter_mut().for_each(|c| {
-            let a = planes[c.a as usize].dense_near(c.u);
-            let b = planes[c.b as usize].dense_near(c.u);
+            let a = planes[c.a as usize].dense_near(c.u, radius);
+            let b = planes[c.b as usize].dense_near(c.u, radius);
             if let Some(u) = crate::intersect::refine_crossing(a, b, c.u, radius) {
                 c.u = u;
             }
