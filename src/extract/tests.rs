@@ -60,7 +60,7 @@ fn flat(v: f64) -> impl Fn(f64, f64) -> [f64; 3] {
 
 fn params_for(s: f64, lasers: &str) -> ExtractParams {
     ExtractParams {
-        line_width_px: s * (8.0 * 2f64.ln()).sqrt(),
+        line_width_px: Some(s * (8.0 * 2f64.ln()).sqrt()),
         min_curve_length_px: 5.0,
         lasers: LaserColour::preset(lasers).expect("preset"),
         ..ExtractParams::default()
@@ -98,10 +98,18 @@ fn errors(
 /// Bias and standard deviation of the centre over 16 angles × 5 sub-pixel offsets of a
 /// Gaussian stripe of std `s` at peak-to-noise 40, and the worst per-configuration bias.
 fn straight_stripe_errors(s: f64, seed: u64) -> (f64, f64, f64) {
-    let (w, h) = (48u32, 48u32);
+    straight_stripe_errors_with(&params_for(s, "red"), s, seed)
+}
+
+/// As [`straight_stripe_errors`] with the given parameters; the image grows with the
+/// stripe so that the inner square keeps 8 px and two stripe widths from the border.
+fn straight_stripe_errors_with(params: &ExtractParams, s: f64, seed: u64) -> (f64, f64, f64) {
+    let margin = (8.0f64).max(2.0 * 2.355 * s);
+    let size = (32.0 + 2.0 * margin).ceil() as u32;
+    let (w, h) = (size, size);
     let (peak, bg) = (200.0, 20.0);
     let camera = Camera::with_fov(w, h, 1.0);
-    let mut ex = Extractor::new(&params_for(s, "red"), &camera).expect("extractor");
+    let mut ex = Extractor::new(params, &camera).expect("extractor");
     let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
     let mut rng = Rng(seed);
     let mut all = Vec::new();
@@ -113,7 +121,8 @@ fn straight_stripe_errors(s: f64, seed: u64) -> (f64, f64, f64) {
         let (nx, ny) = (-theta.sin(), theta.cos());
         for oi in 0..offsets {
             let off = oi as f64 / offsets as f64;
-            let (cx, cy) = (23.3 + off * nx, 23.6 + off * ny);
+            let c = 0.5 * (size as f64 - 1.0);
+            let (cx, cy) = (c - 0.2 + off * nx, c + 0.1 + off * ny);
             let dist = move |x: f64, y: f64| (x - cx) * nx + (y - cy) * ny;
             let stripe = Stripe {
                 rgb: [1.0, 0.1, 0.15],
@@ -123,7 +132,7 @@ fn straight_stripe_errors(s: f64, seed: u64) -> (f64, f64, f64) {
             };
             let frame = render(w, h, &flat(bg), &[stripe], peak / 40.0, &mut rng);
             let curves = ex.extract(&frame, &background);
-            let e = errors(&curves, w, h, 8.0, &dist);
+            let e = errors(&curves, w, h, margin as f32, &dist);
             // The stripe crosses the inner 32 px square: nearly all of it must be found.
             assert!(
                 e.len() >= 28,
@@ -158,6 +167,30 @@ fn straight_stripes_are_unbiased_at_peak_to_noise_40() {
     }
 }
 
+/// No width given: the scale follows the stripe, from 2 to 15 px FWHM, with the same
+/// limits as a matched width.
+#[test]
+fn straight_stripes_of_any_width_without_a_width() {
+    let auto = ExtractParams {
+        line_width_px: None,
+        ..params_for(1.0, "red")
+    };
+    for (fwhm, seed) in [(2.0, 21), (5.0, 22), (10.0, 23), (15.0, 24)] {
+        let s = fwhm / (8.0 * 2f64.ln()).sqrt();
+        let (m, sd, worst_bias) = straight_stripe_errors_with(&auto, s, seed);
+        eprintln!("auto FWHM {fwhm}: bias {m:.4} std {sd:.4} worst {worst_bias:.4}");
+        assert!(m.abs() <= 0.02, "FWHM {fwhm}: bias {m}");
+        assert!(sd <= 0.05, "FWHM {fwhm}: std {sd}");
+        // One configuration's mean is over ~40 points whose noise is correlated over
+        // the smoothing length (σ up to 4.5 px), so its spread grows with the width.
+        let worst_limit = if fwhm > 6.0 { 0.08 } else { 0.05 };
+        assert!(
+            worst_bias <= worst_limit,
+            "FWHM {fwhm}: worst per-configuration bias {worst_bias}"
+        );
+    }
+}
+
 /// Overexposed stripes clip to a flat top (as real ones do): no longer Gaussian, but
 /// symmetric, so the centre must stay close, given the width of the clipped profile.
 #[test]
@@ -167,7 +200,7 @@ fn clipped_stripes_stay_close() {
     // |d| < 1.6 s; half maximum of the clipped profile at |d| = 1.98 s.
     let (s, peak, bg) = (1.2, 700.0, 20.0);
     let params = ExtractParams {
-        line_width_px: 2.0 * 1.98 * s,
+        line_width_px: Some(2.0 * 1.98 * s),
         ..params_for(s, "red")
     };
     let camera = Camera::with_fov(w, h, 1.0);
@@ -437,7 +470,7 @@ fn undistorted_points_and_polyline() {
 fn params_from_toml_reject_unknown_keys() {
     let p: ExtractParams =
         toml::from_str("line_width_px = 6.0\nhigh_contrast = 50.0").expect("toml");
-    assert_eq!(p.line_width_px, 6.0);
+    assert_eq!(p.line_width_px, Some(6.0));
     assert_eq!(p.low_contrast, ExtractParams::default().low_contrast);
     assert!(toml::from_str::<ExtractParams>("line_width = 6.0").is_err());
     let camera = Camera::with_fov(10, 10, 1.0);
@@ -469,9 +502,9 @@ fn real_pair_finds_the_stripe_on_the_bust_only() {
     let load = |name: &str| image::open(dir.join(name)).expect(name).to_rgb8();
     let (frame, off) = (load("laser.png"), load("laser_background.png"));
     let camera = Camera::with_fov(frame.width(), frame.height(), 1.0);
-    // The stripe is saturated with a flat top ~8 px wide and ~12 px at half maximum.
+    // The stripe is saturated with a flat top ~8 px wide and ~12 px at half maximum;
+    // the default parameters measure its width.
     let params = ExtractParams {
-        line_width_px: 10.0,
         lasers: LaserColour::preset("red").expect("preset"),
         ..ExtractParams::default()
     };
