@@ -334,6 +334,9 @@ pub struct Extractor {
     detector: Detector,
     linker: Linker,
     active: Vec<Vec<bool>>,
+    /// Per tile: holds a white (bright, desaturated) pixel; scratch of the activation.
+    white: Vec<bool>,
+    grown: Vec<bool>,
     /// No lens distortion: points skip the (per-point allocating) undistortion.
     undistorted_camera: bool,
     stats: ExtractStats,
@@ -365,6 +368,8 @@ impl Extractor {
         Ok(Self {
             undistorted_camera: camera.distortion.is_zero(),
             active: vec![vec![false; tiles]; params.lasers.len()],
+            white: vec![false; tiles],
+            grown: vec![false; tiles],
             params: params.clone(),
             camera: camera.clone(),
             lut,
@@ -428,13 +433,16 @@ impl Extractor {
         Ok(curves)
     }
 
-    /// Marks, per laser, the tiles holding a pixel of that laser's colour. A cheap
-    /// byte-wise test (any channel of the difference reaching `min_value`) runs over
-    /// every tile-wide chunk of every row; the look-up table only on chunks that pass.
+    /// Marks, per laser, the tiles holding a pixel of that laser's colour, and the
+    /// tiles holding a white pixel next to those (a saturated stripe core is white, and
+    /// a wide one fills a tile with no coloured fringe in it). A cheap byte-wise test
+    /// (any channel of the difference reaching `min_value`) runs over every tile-wide
+    /// chunk of every row; the look-up table only on chunks that pass.
     fn activate_rgb(&mut self, frame: &RgbImage, background: &RgbImage) {
         for a in &mut self.active {
             a.fill(false);
         }
+        self.white.fill(false);
         let (w, tile, tiles_x) = (
             self.detector.width,
             self.detector.tile,
@@ -466,10 +474,24 @@ impl Extractor {
                     if let Some(c) = self.lut.classify(dr, dg, db) {
                         if c < n_lasers {
                             self.active[c as usize][t] = true;
+                        } else if c == colour::Class::White as u8 {
+                            self.white[t] = true;
                         }
                     }
                 }
             }
+        }
+        let (tx_n, ty_n) = (tiles_x, self.detector.tiles_y);
+        for active in &mut self.active {
+            self.grown.copy_from_slice(active);
+            for (t, _) in self.white.iter().enumerate().filter(|(_, w)| **w) {
+                let (tx, ty) = (t % tx_n, t / tx_n);
+                let near = (ty.saturating_sub(1)..(ty + 2).min(ty_n)).any(|y| {
+                    (tx.saturating_sub(1)..(tx + 2).min(tx_n)).any(|x| active[y * tx_n + x])
+                });
+                self.grown[t] |= near;
+            }
+            std::mem::swap(active, &mut self.grown);
         }
     }
 

@@ -317,6 +317,46 @@ fn thin_and_wide_stripes_in_one_frame() {
     }
 }
 
+/// A saturated stripe whose white core (16.8 px) fills a whole row of tiles, its red
+/// fringe only in the tiles above and below: still found, and as the red laser (the
+/// white core counts for green too, but no green pixel is near it).
+#[test]
+fn white_core_with_a_coloured_fringe_is_found() {
+    let (w, h) = (96u32, 64u32);
+    // Green and blue at 0.8 of red: the difference is white (saturation < 0.25) where
+    // 0.8 × 900 g ≥ 0.75 × 235, |d| ≤ 8.4 px, i.e. rows 16..31 entirely; red beyond.
+    let (s, peak, bg) = (5.0, 900.0, 20.0);
+    let dist = |_x: f64, y: f64| y - 23.6;
+    let stripe = Stripe {
+        rgb: [1.0, 0.8, 0.8],
+        peak,
+        s,
+        distance: &dist,
+    };
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(
+        &ExtractParams {
+            line_width_px: None,
+            ..params_for(1.0, "red-green")
+        },
+        &camera,
+    )
+    .expect("extractor");
+    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let frame = render(w, h, &flat(bg), &[stripe], 1.0, &mut Rng(0x3417e));
+    // Noise 1: a saturated core reads 255 on a real sensor, not 255 minus noise (with
+    // noise 5 the clipped plateau, at the edge of what σ 4.5 can centre, breaks up).
+    let core = frame.get_pixel(40, 24).0;
+    assert!(core.iter().all(|&c| c == 255), "core {core:?} not white");
+    let curves = ex.extract(&frame, &background);
+    let e = errors(&curves, w, h, 12.0, &dist);
+    let (m, sd) = mean_std(&e);
+    eprintln!("white core: n={} bias={m:.4} std={sd:.4}", e.len());
+    assert!(e.len() >= 65, "{} points", e.len());
+    assert!(curves.iter().all(|c| c.laser == 0), "seen as green");
+    assert!(m.abs() <= 0.05 && sd <= 0.1, "bias {m} std {sd}");
+}
+
 #[test]
 fn circular_arc_follows_the_circle() {
     let (w, h) = (96u32, 96u32);
