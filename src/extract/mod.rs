@@ -21,14 +21,24 @@
 //!    fragments shorter than `min_curve_length_px` dropped, points undistorted one by
 //!    one, Douglas–Peucker simplification in undistorted pixel units.
 //!
+//! # Scale
+//! With no `line_width_px` (the default) each active tile measures its stripe's width
+//! (FWHM) on the response around it: the pixels at or above half the local maximum
+//! form a band whose second moment across is `w² / 12`, whatever its direction. The
+//! tile then runs at the smallest scale of [`AUTO_SIGMAS_PX`] with `2√3 σ ≥ w` (Steger's
+//! bar condition `σ ≥ (w/2)/√3`, which keeps a clipped flat top a single ridge); the
+//! Gaussian stripe's ln-g offset is exact at any `σ`. A given `line_width_px` forces
+//! `σ = max(w / (2√3), 1)`, and `sigma_px` forces `σ`.
+//!
 //! # Thresholds
 //! `high_contrast` and `low_contrast` are absolute, in grey levels (0–255) of the
 //! background-subtracted stripe peak: a Gaussian stripe whose full width at half
-//! maximum is `line_width_px` and whose peak is `c` grey levels above the background
-//! gives a Hessian eigenvalue `c · s / (s² + σ²)^{3/2}` (`s` = FWHM / 2.355), and the
-//! thresholds are converted with that factor. [`Curve::strength`] is in the same unit.
-//! The smoothing scale is `σ = max(w/√3, 1)` for the half-width `w = line_width_px / 2`
-//! (Steger's condition for a bar profile), unless `sigma_px` is set.
+//! maximum is `w` and whose peak is `c` grey levels above the background gives a
+//! Hessian eigenvalue `c · s / (s² + σ²)^{3/2}` (`s` = w / 2.355). Each scale divides
+//! its eigenvalues by that factor for the width it is for (`line_width_px`, or
+//! `2√3 σ` for the automatic scales), so strengths and thresholds are grey levels at
+//! every scale; a stripe narrower than its scale's width reads up to ~1.4× its
+//! contrast. [`Curve::strength`] is in the same unit.
 //!
 //! # Curves file (JSON, version 1)
 //! | key | type | meaning |

@@ -167,7 +167,7 @@ mod tests {
             out: dir.path().join("curves.json"),
             overlay: Some(dir.path().join("overlay.png")),
             lasers: Some("red".into()),
-            line_width_px: Some(10.0),
+            line_width_px: None,
         };
         run(args).expect("extract");
         let file = CurvesFile::load(&dir.path().join("curves.json")).expect("curves file");
