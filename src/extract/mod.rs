@@ -228,9 +228,10 @@ impl ExtractParams {
 }
 
 /// Smoothing scales (px) of the automatic width: each takes the stripes up to
-/// `2√3 σ` wide (Steger's bar condition `σ ≥ w_half / √3`), so FWHM ≤ 3.5, 5.2, 7.6,
-/// 11.1 and 15.6 px; wider stripes get the last scale.
-pub const AUTO_SIGMAS_PX: [f64; 5] = [1.0, 1.5, 2.2, 3.2, 4.5];
+/// `2√3 σ` wide (Steger's bar condition `σ ≥ w_half / √3`), so FWHM ≤ 3.5, 4.5, 5.9,
+/// 7.6, 9.7, 12.1 and 15.6 px; wider stripes get the last scale. Steps of ~1.3 keep
+/// the chosen scale (and its cost, which grows with σ) close to the least that works.
+pub const AUTO_SIGMAS_PX: [f64; 7] = [1.0, 1.3, 1.7, 2.2, 2.8, 3.5, 4.5];
 
 /// Hessian eigenvalue at scale `sigma` of a Gaussian stripe `width` px wide (FWHM) and
 /// one grey level high.
