@@ -33,6 +33,11 @@ fn texture(x: f64, y: f64) -> [f64; 3] {
 
 /// Renders the scene; `cross` adds the two stripes (Gaussian profile, std 1.7 px).
 fn render(cross: bool, seed: u64) -> RgbImage {
+    render_with(cross, 1.7, seed)
+}
+
+/// As [`render`] with stripes of Gaussian std `stripe_s` px.
+fn render_with(cross: bool, stripe_s: f64, seed: u64) -> RgbImage {
     let roll: f64 = 0.35;
     let (c, s) = (roll.cos(), roll.sin());
     let (cx, cy) = (1003.4, 561.7);
@@ -42,7 +47,7 @@ fn render(cross: bool, seed: u64) -> RgbImage {
         if cross {
             let d_red = -(xf - cx) * s + (yf - cy) * c;
             let d_green = (xf - cx) * c + (yf - cy) * s;
-            let g = |d: f64| 150.0 * (-0.5 * d * d / (1.7 * 1.7)).exp();
+            let g = |d: f64| 150.0 * (-0.5 * d * d / (stripe_s * stripe_s)).exp();
             let (r, gr) = (g(d_red), g(d_green));
             v[0] += r + 0.1 * gr;
             v[1] += 0.15 * r + gr;
@@ -82,6 +87,22 @@ fn bench_extract(c: &mut Criterion) {
         .min()
         .unwrap_or_default();
     println!("best of 60: {:.2} ms/frame", best.as_secs_f64() * 1e3);
+    // Wide stripes (FWHM 12 px) take the wide scales: the costliest case.
+    let wide = render_with(true, 5.1, 3);
+    let wide_curves = extractor.extract(&wide, &background);
+    let best_wide = (0..30)
+        .map(|_| {
+            let t = std::time::Instant::now();
+            std::hint::black_box(extractor.extract(&wide, &background));
+            t.elapsed()
+        })
+        .min()
+        .unwrap_or_default();
+    println!(
+        "wide stripes (FWHM 12 px): {} curves, best of 30: {:.2} ms/frame",
+        wide_curves.len(),
+        best_wide.as_secs_f64() * 1e3
+    );
     // CPU time actually spent per frame (Linux), which contention does not inflate.
     if let Some(before) = thread_cpu_nanos() {
         let n = 60;

@@ -55,7 +55,8 @@ impl Kernels {
 }
 
 /// One ridge point: sub-pixel position (pixel centres at integers), unit normal across
-/// the line, and strength `-λ` (the magnitude of the negative Hessian eigenvalue).
+/// the line, and strength `-λ` (the magnitude of the negative Hessian eigenvalue) in
+/// grey levels of stripe contrast (divided by its scale's eigenvalue per grey level).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct LinePoint {
     pub x: f32,
@@ -67,6 +68,31 @@ pub(crate) struct LinePoint {
 }
 
 pub(crate) const NO_POINT: u32 = u32::MAX;
+
+/// One smoothing scale of the detector.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Scale {
+    pub sigma_px: f64,
+    /// Hessian eigenvalue of a stripe of one grey level of peak that this scale is for;
+    /// strengths are divided by it, so thresholds and strengths are in grey levels at
+    /// every scale.
+    pub eigenvalue_per_grey_level: f64,
+    /// The widest stripe (FWHM, px) this scale is chosen for; the last scale takes the
+    /// rest.
+    pub max_width_px: f64,
+}
+
+/// One scale's kernels and constants.
+struct Level {
+    kernels: Kernels,
+    /// Points whose window of this radius holds a masked pixel are dropped.
+    mask_radius: usize,
+    per_grey: f32,
+    max_width_px: f64,
+}
+
+/// Margin around an active tile over which its stripe width is measured.
+const WIDTH_MARGIN: usize = 8;
 
 /// A pixel rectangle `[x0, x1, y0, y1)`; empty when `x0 >= x1`.
 type Rect = [usize; 4];
@@ -85,29 +111,41 @@ pub(crate) struct Detector {
     pub tile: usize,
     pub tiles_x: usize,
     pub tiles_y: usize,
-    kernels: Kernels,
+    levels: Vec<Level>,
+    /// Per tile: index into `levels` (meaningful on active tiles only).
+    tile_level: Vec<u8>,
     pub response: Vec<f32>,
     /// Per pixel: nonzero where the response was zeroed for another laser's colour.
     pub masked: Vec<u8>,
-    /// Points whose window of this radius holds a masked pixel are dropped.
-    mask_radius: usize,
     row_s: Vec<f32>,
     row_d1: Vec<f32>,
     row_d2: Vec<f32>,
     /// Per tile: the part whose response must be computed (kernel margins of the
     /// active tiles around it), and the part that needs the row pass.
     response_box: Vec<Rect>,
+    filled_box: Vec<Rect>,
     rows_box: Vec<Rect>,
     acc: Vec<f32>,
+
     pub points: Vec<LinePoint>,
     /// Per pixel: index into `points`, or `NO_POINT`.
     pub index: Vec<u32>,
 }
 
 impl Detector {
-    pub fn new(width: usize, height: usize, sigma: f64) -> Self {
-        let kernels = Kernels::new(sigma);
-        let tile = kernels.radius.max(16);
+    /// A detector over `scales` (at least one; sorted by `max_width_px`).
+    pub fn new(width: usize, height: usize, scales: &[Scale]) -> Self {
+        let levels: Vec<Level> = scales
+            .iter()
+            .map(|s| Level {
+                kernels: Kernels::new(s.sigma_px),
+                mask_radius: (2.5 * s.sigma_px).ceil() as usize,
+                per_grey: s.eigenvalue_per_grey_level as f32,
+                max_width_px: s.max_width_px,
+            })
+            .collect();
+        let max_radius = levels.iter().map(|l| l.kernels.radius).max().unwrap_or(1);
+        let tile = max_radius.max(16);
         let tiles_x = width.div_ceil(tile);
         let tiles_y = height.div_ceil(tile);
         let n = width * height;
@@ -117,18 +155,19 @@ impl Detector {
             tile,
             tiles_x,
             tiles_y,
+            tile_level: vec![0; tiles_x * tiles_y],
             response: vec![0.0; n],
             masked: vec![0; n],
-            mask_radius: (2.5 * sigma).ceil() as usize,
             row_s: vec![0.0; n],
             row_d1: vec![0.0; n],
             row_d2: vec![0.0; n],
             response_box: vec![EMPTY; tiles_x * tiles_y],
+            filled_box: vec![EMPTY; tiles_x * tiles_y],
             rows_box: vec![EMPTY; tiles_x * tiles_y],
             acc: vec![0.0; 6 * tile],
             points: Vec::new(),
             index: vec![NO_POINT; n],
-            kernels,
+            levels,
         }
     }
 
@@ -145,20 +184,46 @@ impl Detector {
         )
     }
 
-    /// Marks what each tile needs from the active tiles, and calls
-    /// `fill(y, x0, response, masked)` for every tile row whose response must be
-    /// computed; the slices cover pixels `x0..x0 + response.len()` of image row `y`, and
+    /// Fills the response the active tiles need, and chooses each active tile's scale
+    /// from the width of its stripe. Calls `fill(y, x0, response, masked)` for image
+    /// row spans; the slices cover pixels `x0..x0 + response.len()` of row `y`, and
     /// `masked` must be set nonzero where the response was zeroed for another colour.
+    ///
+    /// With more than one scale, the response is first filled on the active tiles and
+    /// [`WIDTH_MARGIN`] around them, the width measured there ([`Self::stripe_width`]),
+    /// and the margins then grown to the chosen kernels' radii.
     pub fn prepare(
         &mut self,
         active: &[bool],
         mut fill: impl FnMut(usize, usize, &mut [f32], &mut [u8]),
     ) {
+        self.filled_box.fill(EMPTY);
+        if self.levels.len() > 1 {
+            self.mark_boxes(active, |_| WIDTH_MARGIN);
+            self.fill_boxes(&mut fill);
+            for (t, _) in active.iter().enumerate().filter(|(_, a)| **a) {
+                let width = self.stripe_width(t);
+                let last = self.levels.len() - 1;
+                let level = self
+                    .levels
+                    .iter()
+                    .position(|l| width <= l.max_width_px)
+                    .unwrap_or(last);
+                self.tile_level[t] = level as u8;
+            }
+        } else {
+            self.tile_level.fill(0);
+        }
+        self.mark_boxes_by_level(active);
+        self.fill_boxes(&mut fill);
+    }
+
+    /// Response boxes: every active tile and the margin `margin(t)` around it.
+    fn mark_boxes(&mut self, active: &[bool], margin: impl Fn(usize) -> usize) {
         self.response_box.fill(EMPTY);
-        self.rows_box.fill(EMPTY);
         let (tx_n, ty_n) = (self.tiles_x as isize, self.tiles_y as isize);
-        let r = self.kernels.radius;
         for (t, _) in active.iter().enumerate().filter(|(_, a)| **a) {
+            let r = margin(t);
             let (tx, ty) = ((t % self.tiles_x) as isize, (t / self.tiles_x) as isize);
             for dy in -1..=1 {
                 for dx in -1..=1 {
@@ -168,7 +233,7 @@ impl Detector {
                     }
                     let u = (y * tx_n + x) as usize;
                     let (x0, x1, y0, y1) = self.tile_bounds(u);
-                    // Only the kernel radius next to the active tile is needed.
+                    // Only the margin next to the active tile is needed.
                     let (xa, xb) = match dx {
                         -1 => (x1.saturating_sub(r).max(x0), x1),
                         0 => (x0, x1),
@@ -180,18 +245,40 @@ impl Detector {
                         _ => (y0, (y0 + r).min(y1)),
                     };
                     merge(&mut self.response_box[u], [xa, xb, ya, yb]);
-                    if dx == 0 {
-                        merge(&mut self.rows_box[u], [xa, xb, ya, yb]);
-                    }
                 }
             }
         }
+    }
+
+    fn mark_boxes_by_level(&mut self, active: &[bool]) {
+        let radii: [usize; 8] =
+            std::array::from_fn(|i| self.levels.get(i).map_or(0, |l| l.kernels.radius));
+        let tile_level = std::mem::take(&mut self.tile_level);
+        self.mark_boxes(active, |t| radii[(tile_level[t] as usize).min(7)]);
+        self.tile_level = tile_level;
+    }
+
+    /// Fills every response box not already filled (a box that grew is filled again
+    /// whole: only wide scales grow their margins past [`WIDTH_MARGIN`]).
+    fn fill_boxes(&mut self, fill: &mut impl FnMut(usize, usize, &mut [f32], &mut [u8])) {
         for t in 0..self.response_box.len() {
-            let [x0, x1, y0, y1] = self.response_box[t];
-            for y in y0..y1 {
-                if x0 >= x1 {
-                    break;
+            let mut need = self.response_box[t];
+            let done = self.filled_box[t];
+            if need[0] >= need[1] {
+                continue;
+            }
+            if done[0] < done[1] {
+                if done[0] <= need[0]
+                    && done[1] >= need[1]
+                    && done[2] <= need[2]
+                    && done[3] >= need[3]
+                {
+                    continue;
                 }
+                merge(&mut need, done);
+            }
+            let [x0, x1, y0, y1] = need;
+            for y in y0..y1 {
                 let span = y * self.width + x0..y * self.width + x1;
                 fill(
                     y,
@@ -200,29 +287,122 @@ impl Detector {
                     &mut self.masked[span],
                 );
             }
+            self.filled_box[t] = need;
         }
     }
 
-    /// Finds ridge points with strength at least `min_strength` on the active tiles
-    /// (after [`Self::prepare`]). Clears the previous frame's points first.
+    /// Full width at half maximum (px) of the stripe in active tile `t`, measured on
+    /// the response over the tile and [`WIDTH_MARGIN`] around it: the pixels at or
+    /// above half the window's maximum form a band across the stripe; its second
+    /// moment across (the smaller eigenvalue of the covariance of their positions) is
+    /// `w² / 12` for a band `w` wide, whatever its direction, and the window cutting
+    /// the band's length does not change it. A curve or a blob only widens it, which
+    /// errs towards a larger scale.
+    fn stripe_width(&self, t: usize) -> f64 {
+        let (x0, x1, y0, y1) = self.tile_bounds(t);
+        let m = WIDTH_MARGIN;
+        let (xa, xb) = (x0.saturating_sub(m), (x1 + m).min(self.width));
+        let (ya, yb) = (y0.saturating_sub(m), (y1 + m).min(self.height));
+        let w = self.width;
+        let mut peak = 0.0f32;
+        for y in ya..yb {
+            peak = self.response[y * w + xa..y * w + xb]
+                .iter()
+                .fold(peak, |p, &v| p.max(v));
+        }
+        if peak <= 0.0 {
+            return 0.0;
+        }
+        let half = 0.5 * peak;
+        // Integer moments about the window's corner: exact, and at most 48² pixels.
+        let (mut n, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0i64, 0i64, 0, 0, 0, 0);
+        for (j, y) in (ya..yb).enumerate() {
+            let j = j as i64;
+            for (i, &v) in self.response[y * w + xa..y * w + xb].iter().enumerate() {
+                if v >= half {
+                    let i = i as i64;
+                    n += 1;
+                    sx += i;
+                    sy += j;
+                    sxx += i * i;
+                    sxy += i * j;
+                    syy += j * j;
+                }
+            }
+        }
+        if n < 3 {
+            return n as f64;
+        }
+        let nf = n as f64;
+        let (mx, my) = (sx as f64 / nf, sy as f64 / nf);
+        let cxx = sxx as f64 / nf - mx * mx;
+        let cxy = sxy as f64 / nf - mx * my;
+        let cyy = syy as f64 / nf - my * my;
+        let half_trace = 0.5 * (cxx + cyy);
+        let disc = (0.25 * (cxx - cyy) * (cxx - cyy) + cxy * cxy).sqrt();
+        (12.0 * (half_trace - disc).max(0.0)).sqrt()
+    }
+
+    /// Finds ridge points of strength (grey levels) at least `min_strength` on the
+    /// active tiles (after [`Self::prepare`]), each tile at its scale. Clears the
+    /// previous frame's points first.
     pub fn detect(&mut self, active: &[bool], min_strength: f32) {
         for p in &self.points {
             self.index[p.pixel as usize] = NO_POINT;
         }
         self.points.clear();
-        for t in 0..self.rows_box.len() {
-            if self.rows_box[t][0] < self.rows_box[t][1] {
-                self.row_pass(self.rows_box[t]);
+        // Taken out for the loop, so that the tiles of a scale can be listed while the
+        // passes borrow the detector.
+        let tile_level = std::mem::take(&mut self.tile_level);
+        let tiles_of = |level: usize| {
+            active
+                .iter()
+                .zip(&tile_level)
+                .enumerate()
+                .filter(move |(_, (a, l))| **a && **l as usize == level)
+                .map(|(t, _)| t)
+        };
+        for level in 0..self.levels.len() {
+            if tiles_of(level).next().is_none() {
+                continue;
+            }
+            // Rows needed by this scale's tiles: the tiles and the radius above, below.
+            self.rows_box.fill(EMPTY);
+            let r = self.levels[level].kernels.radius;
+            for t in tiles_of(level) {
+                let (tx, ty) = (t % self.tiles_x, t / self.tiles_x);
+                for dy in -1isize..=1 {
+                    let y = ty as isize + dy;
+                    if y < 0 || y >= self.tiles_y as isize {
+                        continue;
+                    }
+                    let u = y as usize * self.tiles_x + tx;
+                    let (x0, x1, y0, y1) = self.tile_bounds(u);
+                    let (ya, yb) = match dy {
+                        -1 => (y1.saturating_sub(r).max(y0), y1),
+                        0 => (y0, y1),
+                        _ => (y0, (y0 + r).min(y1)),
+                    };
+                    merge(&mut self.rows_box[u], [x0, x1, ya, yb]);
+                }
+            }
+            for t in 0..self.rows_box.len() {
+                if self.rows_box[t][0] < self.rows_box[t][1] {
+                    self.row_pass(level, self.rows_box[t]);
+                }
+            }
+            let min_level = min_strength * self.levels[level].per_grey;
+            for t in tiles_of(level) {
+                self.column_pass_and_hessian(level, t, min_level);
             }
         }
-        for (t, _) in active.iter().enumerate().filter(|(_, a)| **a) {
-            self.column_pass_and_hessian(t, min_strength);
-        }
+        self.tile_level = tile_level;
     }
 
-    fn row_pass(&mut self, [x0, x1, y0, y1]: Rect) {
+    fn row_pass(&mut self, level: usize, [x0, x1, y0, y1]: Rect) {
         let w = self.width;
-        let r = self.kernels.radius as isize;
+        let kernels = &self.levels[level].kernels;
+        let r = kernels.radius as isize;
         let fast = x0 as isize >= r && (x1 as isize + r) <= w as isize;
         for y in y0..y1 {
             let row = &self.response[y * w..(y + 1) * w];
@@ -233,7 +413,7 @@ impl Detector {
             o1.fill(0.0);
             o2.fill(0.0);
             for (j, i) in (-r..=r).enumerate() {
-                let (a, b, c) = (self.kernels.k0[j], self.kernels.k1[j], self.kernels.k2[j]);
+                let (a, b, c) = (kernels.k0[j], kernels.k1[j], kernels.k2[j]);
                 if fast {
                     let s = (x0 as isize + i) as usize;
                     let src = &row[s..s + (x1 - x0)];
@@ -268,11 +448,18 @@ impl Detector {
         (ya..yb).any(|yy| masked[yy * w + xa..yy * w + xb].iter().any(|&m| m != 0))
     }
 
-    fn column_pass_and_hessian(&mut self, t: usize, min_strength: f32) {
+    fn column_pass_and_hessian(&mut self, level: usize, t: usize, min_strength: f32) {
         let (x0, x1, y0, y1) = self.tile_bounds(t);
         let (w, h) = (self.width, self.height as isize);
         let n = x1 - x0;
-        let r = self.kernels.radius as isize;
+        let Level {
+            kernels,
+            mask_radius,
+            per_grey,
+            ..
+        } = &self.levels[level];
+        let (mask_radius, per_grey) = (*mask_radius, *per_grey);
+        let r = kernels.radius as isize;
         let (gx, rest) = self.acc.split_at_mut(self.tile);
         let (gy, rest) = rest.split_at_mut(self.tile);
         let (gxx, rest) = rest.split_at_mut(self.tile);
@@ -285,7 +472,7 @@ impl Detector {
             for (j, i) in (-r..=r).enumerate() {
                 let ys = (y as isize + i).clamp(0, h - 1) as usize;
                 let span = ys * w + x0..ys * w + x1;
-                let (k0, k1, k2) = (self.kernels.k0[j], self.kernels.k1[j], self.kernels.k2[j]);
+                let (k0, k1, k2) = (kernels.k0[j], kernels.k1[j], kernels.k2[j]);
                 let s = &self.row_s[span.clone()];
                 let d1 = &self.row_d1[span.clone()];
                 let d2 = &self.row_d2[span];
@@ -355,7 +542,7 @@ impl Detector {
                     continue;
                 }
                 let x = x0 + k;
-                if Self::near_mask(&self.masked, (w, self.height), self.mask_radius, x, y) {
+                if Self::near_mask(&self.masked, (w, self.height), mask_radius, x, y) {
                     continue;
                 }
                 let pixel = y * w + x;
@@ -365,7 +552,7 @@ impl Detector {
                     y: y as f32 + oy,
                     nx,
                     ny,
-                    strength: -lambda,
+                    strength: -lambda / per_grey,
                     pixel: pixel as u32,
                 });
             }

@@ -21,14 +21,24 @@
 //!    fragments shorter than `min_curve_length_px` dropped, points undistorted one by
 //!    one, Douglas–Peucker simplification in undistorted pixel units.
 //!
+//! # Scale
+//! With no `line_width_px` (the default) each active tile measures its stripe's width
+//! (FWHM) on the response around it: the pixels at or above half the local maximum
+//! form a band whose second moment across is `w² / 12`, whatever its direction. The
+//! tile then runs at the smallest scale of [`AUTO_SIGMAS_PX`] with `2√3 σ ≥ w` (Steger's
+//! bar condition `σ ≥ (w/2)/√3`, which keeps a clipped flat top a single ridge); the
+//! Gaussian stripe's ln-g offset is exact at any `σ`. A given `line_width_px` forces
+//! `σ = max(w / (2√3), 1)`, and `sigma_px` forces `σ`.
+//!
 //! # Thresholds
 //! `high_contrast` and `low_contrast` are absolute, in grey levels (0–255) of the
 //! background-subtracted stripe peak: a Gaussian stripe whose full width at half
-//! maximum is `line_width_px` and whose peak is `c` grey levels above the background
-//! gives a Hessian eigenvalue `c · s / (s² + σ²)^{3/2}` (`s` = FWHM / 2.355), and the
-//! thresholds are converted with that factor. [`Curve::strength`] is in the same unit.
-//! The smoothing scale is `σ = max(w/√3, 1)` for the half-width `w = line_width_px / 2`
-//! (Steger's condition for a bar profile), unless `sigma_px` is set.
+//! maximum is `w` and whose peak is `c` grey levels above the background gives a
+//! Hessian eigenvalue `c · s / (s² + σ²)^{3/2}` (`s` = w / 2.355). Each scale divides
+//! its eigenvalues by that factor for the width it is for (`line_width_px`, or
+//! `2√3 σ` for the automatic scales), so strengths and thresholds are grey levels at
+//! every scale; a stripe narrower than its scale's width reads up to ~1.4× its
+//! contrast. [`Curve::strength`] is in the same unit.
 //!
 //! # Curves file (JSON, version 1)
 //! | key | type | meaning |
@@ -98,9 +108,10 @@ pub enum ExtractError {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ExtractParams {
-    /// Expected stripe width in pixels (full width at half maximum).
-    pub line_width_px: f64,
-    /// Smoothing scale; derived from `line_width_px` when absent.
+    /// Stripe width in pixels (full width at half maximum); absent: measured per tile
+    /// and the smoothing scale chosen from [`AUTO_SIGMAS_PX`] (see the module doc).
+    pub line_width_px: Option<f64>,
+    /// Smoothing scale, forcing one scale; derived from the width when absent.
     pub sigma_px: Option<f64>,
     /// A curve starts at points of at least this contrast (grey levels, see module doc).
     pub high_contrast: f32,
@@ -124,7 +135,7 @@ impl Default for ExtractParams {
     fn default() -> Self {
         let colour = ColourParams::default();
         Self {
-            line_width_px: 4.0,
+            line_width_px: None,
             sigma_px: None,
             high_contrast: 40.0,
             low_contrast: 15.0,
@@ -139,26 +150,38 @@ impl Default for ExtractParams {
 }
 
 impl ExtractParams {
-    /// The smoothing scale in pixels.
-    pub fn sigma(&self) -> f64 {
-        self.sigma_px
-            .unwrap_or_else(|| (0.5 * self.line_width_px / 3f64.sqrt()).max(1.0))
-    }
-
-    /// Hessian eigenvalue of a stripe of the expected width and 1 grey level of peak.
-    fn eigenvalue_per_grey_level(&self) -> f64 {
-        let s = self.line_width_px / (8.0 * 2f64.ln()).sqrt();
-        let sigma = self.sigma();
-        s / (s * s + sigma * sigma).powf(1.5)
+    /// The detector's scales: one when `sigma_px` or `line_width_px` is given, else
+    /// the ladder [`AUTO_SIGMAS_PX`], each for the stripes up to `2√3 σ` wide.
+    fn scales(&self) -> Vec<detect::Scale> {
+        let nominal_width = |sigma: f64| 2.0 * 3f64.sqrt() * sigma;
+        let one = |sigma: f64, width: f64| detect::Scale {
+            sigma_px: sigma,
+            eigenvalue_per_grey_level: eigenvalue_per_grey_level(width, sigma),
+            max_width_px: f64::INFINITY,
+        };
+        match (self.sigma_px, self.line_width_px) {
+            (Some(sigma), width) => vec![one(sigma, width.unwrap_or(nominal_width(sigma)))],
+            (None, Some(width)) => vec![one((width / (2.0 * 3f64.sqrt())).max(1.0), width)],
+            (None, None) => AUTO_SIGMAS_PX
+                .iter()
+                .map(|&sigma| detect::Scale {
+                    sigma_px: sigma,
+                    eigenvalue_per_grey_level: eigenvalue_per_grey_level(
+                        nominal_width(sigma),
+                        sigma,
+                    ),
+                    max_width_px: nominal_width(sigma),
+                })
+                .collect(),
+        }
     }
 
     fn validate(&self) -> Result<(), ExtractError> {
         let bad = |key, message: String| Err(ExtractError::Params { key, message });
-        if !(self.line_width_px.is_finite() && self.line_width_px > 0.0) {
-            return bad(
-                "line_width_px",
-                format!("expected > 0, got {}", self.line_width_px),
-            );
+        if let Some(w) = self.line_width_px {
+            if !(w.is_finite() && (0.5..=100.0).contains(&w)) {
+                return bad("line_width_px", format!("expected 0.5..=100, got {w}"));
+            }
         }
         if let Some(s) = self.sigma_px {
             if !(s.is_finite() && (0.5..=50.0).contains(&s)) {
@@ -202,6 +225,19 @@ impl ExtractParams {
         }
         Ok(())
     }
+}
+
+/// Smoothing scales (px) of the automatic width: each takes the stripes up to
+/// `2√3 σ` wide (Steger's bar condition `σ ≥ w_half / √3`), so FWHM ≤ 3.5, 4.5, 5.9,
+/// 7.6, 9.7, 12.1 and 15.6 px; wider stripes get the last scale. Steps of ~1.3 keep
+/// the chosen scale (and its cost, which grows with σ) close to the least that works.
+pub const AUTO_SIGMAS_PX: [f64; 7] = [1.0, 1.3, 1.7, 2.2, 2.8, 3.5, 4.5];
+
+/// Hessian eigenvalue at scale `sigma` of a Gaussian stripe `width` px wide (FWHM) and
+/// one grey level high.
+fn eigenvalue_per_grey_level(width: f64, sigma: f64) -> f64 {
+    let s = width / (8.0 * 2f64.ln()).sqrt();
+    s / (s * s + sigma * sigma).powf(1.5)
 }
 
 /// One laser curve of one frame.
@@ -309,9 +345,9 @@ pub struct Extractor {
     detector: Detector,
     linker: Linker,
     active: Vec<Vec<bool>>,
-    low: f32,
-    high: f32,
-    per_grey_level: f32,
+    /// Per tile: holds a white (bright, desaturated) pixel; scratch of the activation.
+    white: Vec<bool>,
+    grown: Vec<bool>,
     /// No lens distortion: points skip the (per-point allocating) undistortion.
     undistorted_camera: bool,
     stats: ExtractStats,
@@ -337,16 +373,14 @@ impl Extractor {
         let detector = Detector::new(
             camera.width as usize,
             camera.height as usize,
-            params.sigma(),
+            &params.scales(),
         );
-        let per_grey_level = params.eigenvalue_per_grey_level() as f32;
         let tiles = detector.tiles_x * detector.tiles_y;
         Ok(Self {
-            low: params.low_contrast * per_grey_level,
-            high: params.high_contrast * per_grey_level,
-            per_grey_level,
             undistorted_camera: camera.distortion.is_zero(),
             active: vec![vec![false; tiles]; params.lasers.len()],
+            white: vec![false; tiles],
+            grown: vec![false; tiles],
             params: params.clone(),
             camera: camera.clone(),
             lut,
@@ -401,7 +435,8 @@ impl Extractor {
         for laser in 0..self.params.lasers.len() {
             let fill = response_rgb(&self.lut, laser as u8, frame, background.image());
             self.detector.prepare(&self.active[laser], fill);
-            self.detector.detect(&self.active[laser], self.low);
+            self.detector
+                .detect(&self.active[laser], self.params.low_contrast);
             self.stats.active_tiles += self.active[laser].iter().filter(|a| **a).count();
             self.stats.ridge_points += self.detector.points.len();
             self.link_into(laser as u8, &mut curves);
@@ -409,13 +444,16 @@ impl Extractor {
         Ok(curves)
     }
 
-    /// Marks, per laser, the tiles holding a pixel of that laser's colour. A cheap
-    /// byte-wise test (any channel of the difference reaching `min_value`) runs over
-    /// every tile-wide chunk of every row; the look-up table only on chunks that pass.
+    /// Marks, per laser, the tiles holding a pixel of that laser's colour, and the
+    /// tiles holding a white pixel next to those (a saturated stripe core is white, and
+    /// a wide one fills a tile with no coloured fringe in it). A cheap byte-wise test
+    /// (any channel of the difference reaching `min_value`) runs over every tile-wide
+    /// chunk of every row; the look-up table only on chunks that pass.
     fn activate_rgb(&mut self, frame: &RgbImage, background: &RgbImage) {
         for a in &mut self.active {
             a.fill(false);
         }
+        self.white.fill(false);
         let (w, tile, tiles_x) = (
             self.detector.width,
             self.detector.tile,
@@ -447,10 +485,24 @@ impl Extractor {
                     if let Some(c) = self.lut.classify(dr, dg, db) {
                         if c < n_lasers {
                             self.active[c as usize][t] = true;
+                        } else if c == colour::Class::White as u8 {
+                            self.white[t] = true;
                         }
                     }
                 }
             }
+        }
+        let (tx_n, ty_n) = (tiles_x, self.detector.tiles_y);
+        for active in &mut self.active {
+            self.grown.copy_from_slice(active);
+            for (t, _) in self.white.iter().enumerate().filter(|(_, w)| **w) {
+                let (tx, ty) = (t % tx_n, t / tx_n);
+                let near = (ty.saturating_sub(1)..(ty + 2).min(ty_n)).any(|y| {
+                    (tx.saturating_sub(1)..(tx + 2).min(tx_n)).any(|x| active[y * tx_n + x])
+                });
+                self.grown[t] |= near;
+            }
+            std::mem::swap(active, &mut self.grown);
         }
     }
 
@@ -458,13 +510,12 @@ impl Extractor {
         let det = &self.detector;
         let camera = &self.camera;
         let params = &self.params;
-        let per_grey = self.per_grey_level;
         let undistorted_camera = self.undistorted_camera;
         self.linker.link(
             &det.points,
             &det.index,
             (det.width, det.height),
-            (self.low, self.high),
+            (params.low_contrast, params.high_contrast),
             params.max_link_angle_deg.to_radians() as f32,
             |chain| {
                 let mut curve = Curve {
@@ -486,7 +537,7 @@ impl Extractor {
                     if let Some(n) = normalized {
                         curve.points_px.push([p.x, p.y]);
                         curve.points.push(n);
-                        curve.strength.push(p.strength / per_grey);
+                        curve.strength.push(p.strength);
                     }
                 }
                 if curve.points.len() < 2 || curve.length_px() < params.min_curve_length_px {

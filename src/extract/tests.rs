@@ -60,7 +60,7 @@ fn flat(v: f64) -> impl Fn(f64, f64) -> [f64; 3] {
 
 fn params_for(s: f64, lasers: &str) -> ExtractParams {
     ExtractParams {
-        line_width_px: s * (8.0 * 2f64.ln()).sqrt(),
+        line_width_px: Some(s * (8.0 * 2f64.ln()).sqrt()),
         min_curve_length_px: 5.0,
         lasers: LaserColour::preset(lasers).expect("preset"),
         ..ExtractParams::default()
@@ -98,10 +98,18 @@ fn errors(
 /// Bias and standard deviation of the centre over 16 angles × 5 sub-pixel offsets of a
 /// Gaussian stripe of std `s` at peak-to-noise 40, and the worst per-configuration bias.
 fn straight_stripe_errors(s: f64, seed: u64) -> (f64, f64, f64) {
-    let (w, h) = (48u32, 48u32);
+    straight_stripe_errors_with(&params_for(s, "red"), s, seed)
+}
+
+/// As [`straight_stripe_errors`] with the given parameters; the image grows with the
+/// stripe so that the inner square keeps 8 px and two stripe widths from the border.
+fn straight_stripe_errors_with(params: &ExtractParams, s: f64, seed: u64) -> (f64, f64, f64) {
+    let margin = (8.0f64).max(2.0 * 2.355 * s);
+    let size = (32.0 + 2.0 * margin).ceil() as u32;
+    let (w, h) = (size, size);
     let (peak, bg) = (200.0, 20.0);
     let camera = Camera::with_fov(w, h, 1.0);
-    let mut ex = Extractor::new(&params_for(s, "red"), &camera).expect("extractor");
+    let mut ex = Extractor::new(params, &camera).expect("extractor");
     let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
     let mut rng = Rng(seed);
     let mut all = Vec::new();
@@ -113,7 +121,8 @@ fn straight_stripe_errors(s: f64, seed: u64) -> (f64, f64, f64) {
         let (nx, ny) = (-theta.sin(), theta.cos());
         for oi in 0..offsets {
             let off = oi as f64 / offsets as f64;
-            let (cx, cy) = (23.3 + off * nx, 23.6 + off * ny);
+            let c = 0.5 * (size as f64 - 1.0);
+            let (cx, cy) = (c - 0.2 + off * nx, c + 0.1 + off * ny);
             let dist = move |x: f64, y: f64| (x - cx) * nx + (y - cy) * ny;
             let stripe = Stripe {
                 rgb: [1.0, 0.1, 0.15],
@@ -123,7 +132,7 @@ fn straight_stripe_errors(s: f64, seed: u64) -> (f64, f64, f64) {
             };
             let frame = render(w, h, &flat(bg), &[stripe], peak / 40.0, &mut rng);
             let curves = ex.extract(&frame, &background);
-            let e = errors(&curves, w, h, 8.0, &dist);
+            let e = errors(&curves, w, h, margin as f32, &dist);
             // The stripe crosses the inner 32 px square: nearly all of it must be found.
             assert!(
                 e.len() >= 28,
@@ -158,16 +167,46 @@ fn straight_stripes_are_unbiased_at_peak_to_noise_40() {
     }
 }
 
+/// No width given: the scale follows the stripe, from 2 to 15 px FWHM, with the same
+/// limits as a matched width.
+#[test]
+fn straight_stripes_of_any_width_without_a_width() {
+    let auto = ExtractParams {
+        line_width_px: None,
+        ..params_for(1.0, "red")
+    };
+    for (fwhm, seed) in [(2.0, 21), (5.0, 22), (10.0, 23), (15.0, 24)] {
+        let s = fwhm / (8.0 * 2f64.ln()).sqrt();
+        let (m, sd, worst_bias) = straight_stripe_errors_with(&auto, s, seed);
+        eprintln!("auto FWHM {fwhm}: bias {m:.4} std {sd:.4} worst {worst_bias:.4}");
+        assert!(m.abs() <= 0.02, "FWHM {fwhm}: bias {m}");
+        assert!(sd <= 0.05, "FWHM {fwhm}: std {sd}");
+        assert!(
+            worst_bias <= 0.05,
+            "FWHM {fwhm}: worst per-configuration bias {worst_bias}"
+        );
+    }
+}
+
 /// Overexposed stripes clip to a flat top (as real ones do): no longer Gaussian, but
-/// symmetric, so the centre must stay close, given the width of the clipped profile.
+/// symmetric, so the centre must stay close, given the width of the clipped profile
+/// (matched) or none (measured), narrow (s 1.2: plateau 3.8 px, FWHM 4.8 px) and wide
+/// (s 3: plateau 9.6 px, FWHM 11.9 px).
 #[test]
 fn clipped_stripes_stay_close() {
-    let (w, h) = (48u32, 48u32);
+    for (s, given) in [(1.2, true), (1.2, false), (3.0, false)] {
+        clipped_stripes_stay_close_at(s, given);
+    }
+}
+
+fn clipped_stripes_stay_close_at(s: f64, width_given: bool) {
+    let size = (32.0 + 2.0 * (6.0f64).max(4.0 * s)).ceil() as u32;
+    let (w, h) = (size, size);
     // Peak 700 clipped at 255 − 20: a plateau where the Gaussian exceeds 235, i.e.
     // |d| < 1.6 s; half maximum of the clipped profile at |d| = 1.98 s.
-    let (s, peak, bg) = (1.2, 700.0, 20.0);
+    let (peak, bg) = (700.0, 20.0);
     let params = ExtractParams {
-        line_width_px: 2.0 * 1.98 * s,
+        line_width_px: width_given.then_some(2.0 * 1.98 * s),
         ..params_for(s, "red")
     };
     let camera = Camera::with_fov(w, h, 1.0);
@@ -176,12 +215,14 @@ fn clipped_stripes_stay_close() {
     let mut rng = Rng(0xc11f_0001);
     let mut all = Vec::new();
     let mut worst_bias: f64 = 0.0;
+    let margin = (6.0f64).max(4.0 * s);
     for ai in 0..8 {
         let theta = std::f64::consts::PI * (ai as f64 + 0.21) / 8.0;
         let (nx, ny) = (-theta.sin(), theta.cos());
         for oi in 0..4 {
             let off = oi as f64 / 4.0;
-            let (cx, cy) = (23.1 + off * nx, 23.8 + off * ny);
+            let c = 0.5 * (size as f64 - 1.0);
+            let (cx, cy) = (c - 0.4 + off * nx, c + 0.3 + off * ny);
             let dist = move |x: f64, y: f64| (x - cx) * nx + (y - cy) * ny;
             let stripe = Stripe {
                 rgb: [1.0, 0.1, 0.15],
@@ -191,10 +232,10 @@ fn clipped_stripes_stay_close() {
             };
             let frame = render(w, h, &flat(bg), &[stripe], 5.0, &mut rng);
             let curves = ex.extract(&frame, &background);
-            let e = errors(&curves, w, h, 6.0, &dist);
+            let e = errors(&curves, w, h, margin as f32, &dist);
             assert!(
                 e.len() >= 30,
-                "angle {theta:.2} offset {off}: only {} points",
+                "s {s} angle {theta:.2} offset {off}: only {} points",
                 e.len()
             );
             let (m, _) = mean_std(&e);
@@ -204,15 +245,113 @@ fn clipped_stripes_stay_close() {
     }
     let (m, sd) = mean_std(&all);
     eprintln!(
-        "clipped: n={} bias={m:.4} std={sd:.4} worst config bias={worst_bias:.4}",
+        "clipped s={s} width given {width_given}: n={} bias={m:.4} std={sd:.4} worst config bias={worst_bias:.4}",
         all.len()
     );
-    assert!(m.abs() <= 0.02, "bias {m}");
-    assert!(sd <= 0.05, "std {sd}");
+    assert!(m.abs() <= 0.02, "s {s}: bias {m}");
+    assert!(sd <= 0.05, "s {s}: std {sd}");
     assert!(
         worst_bias <= 0.05,
-        "worst per-configuration bias {worst_bias}"
+        "s {s}: worst per-configuration bias {worst_bias}"
     );
+}
+
+/// One frame, no width given: a thin (FWHM 2 px) and a wide (FWHM 12 px) stripe, each
+/// found whole and unbiased at its own scale.
+#[test]
+fn thin_and_wide_stripes_in_one_frame() {
+    let (w, h) = (128u32, 112u32);
+    let (peak, bg) = (200.0, 20.0);
+    let to_s = 1.0 / (8.0 * 2f64.ln()).sqrt();
+    let d_thin = |x: f64, y: f64| (y - 30.3) - 0.12 * (x - 64.0);
+    let d_wide = |x: f64, y: f64| ((y - 78.6) + 0.2 * (x - 64.0)) / 1.04f64.sqrt();
+    let stripes = [
+        Stripe {
+            rgb: [1.0, 0.1, 0.15],
+            peak,
+            s: 2.0 * to_s,
+            distance: &d_thin,
+        },
+        Stripe {
+            rgb: [1.0, 0.1, 0.15],
+            peak,
+            s: 12.0 * to_s,
+            distance: &d_wide,
+        },
+    ];
+    let params = ExtractParams {
+        line_width_px: None,
+        ..params_for(1.0, "red")
+    };
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&params, &camera).expect("extractor");
+    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let frame = render(w, h, &flat(bg), &stripes, peak / 40.0, &mut Rng(0x7417));
+    let curves = ex.extract(&frame, &background);
+    let truths: [&dyn Fn(f64, f64) -> f64; 2] = [&d_thin, &d_wide];
+    for (name, truth) in ["thin", "wide"].iter().zip(truths) {
+        let e: Vec<f64> = errors(&curves, w, h, 12.0, truth)
+            .into_iter()
+            .filter(|d| d.abs() < 5.0)
+            .collect();
+        let (m, sd) = mean_std(&e);
+        eprintln!("{name}: n={} bias={m:.4} std={sd:.4}", e.len());
+        // The inner 104 px of columns, nearly all found.
+        assert!(e.len() >= 95, "{name}: {} points", e.len());
+        assert!(m.abs() <= 0.02 && sd <= 0.05, "{name}: bias {m} std {sd}");
+    }
+    // Nothing between or beside the stripes (the border, where the wide kernel meets
+    // the replicated edge, aside).
+    for p in curves.iter().flat_map(|c| c.points_px.iter()) {
+        let (x, y) = (p[0] as f64, p[1] as f64);
+        if x < 12.0 || y < 12.0 || x > w as f64 - 13.0 || y > h as f64 - 13.0 {
+            continue;
+        }
+        assert!(
+            d_thin(x, y).abs() < 0.3 || d_wide(x, y).abs() < 0.3,
+            "stray point {p:?}"
+        );
+    }
+}
+
+/// A saturated stripe whose white core (16.8 px) fills a whole row of tiles, its red
+/// fringe only in the tiles above and below: still found, and as the red laser (the
+/// white core counts for green too, but no green pixel is near it).
+#[test]
+fn white_core_with_a_coloured_fringe_is_found() {
+    let (w, h) = (96u32, 64u32);
+    // Green and blue at 0.8 of red: the difference is white (saturation < 0.25) where
+    // 0.8 × 900 g ≥ 0.75 × 235, |d| ≤ 8.4 px, i.e. rows 16..31 entirely; red beyond.
+    let (s, peak, bg) = (5.0, 900.0, 20.0);
+    let dist = |_x: f64, y: f64| y - 23.6;
+    let stripe = Stripe {
+        rgb: [1.0, 0.8, 0.8],
+        peak,
+        s,
+        distance: &dist,
+    };
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(
+        &ExtractParams {
+            line_width_px: None,
+            ..params_for(1.0, "red-green")
+        },
+        &camera,
+    )
+    .expect("extractor");
+    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let frame = render(w, h, &flat(bg), &[stripe], 1.0, &mut Rng(0x3417e));
+    // Noise 1: a saturated core reads 255 on a real sensor, not 255 minus noise (with
+    // noise 5 the clipped plateau, at the edge of what σ 4.5 can centre, breaks up).
+    let core = frame.get_pixel(40, 24).0;
+    assert!(core.iter().all(|&c| c == 255), "core {core:?} not white");
+    let curves = ex.extract(&frame, &background);
+    let e = errors(&curves, w, h, 12.0, &dist);
+    let (m, sd) = mean_std(&e);
+    eprintln!("white core: n={} bias={m:.4} std={sd:.4}", e.len());
+    assert!(e.len() >= 65, "{} points", e.len());
+    assert!(curves.iter().all(|c| c.laser == 0), "seen as green");
+    assert!(m.abs() <= 0.05 && sd <= 0.1, "bias {m} std {sd}");
 }
 
 #[test]
@@ -437,7 +576,7 @@ fn undistorted_points_and_polyline() {
 fn params_from_toml_reject_unknown_keys() {
     let p: ExtractParams =
         toml::from_str("line_width_px = 6.0\nhigh_contrast = 50.0").expect("toml");
-    assert_eq!(p.line_width_px, 6.0);
+    assert_eq!(p.line_width_px, Some(6.0));
     assert_eq!(p.low_contrast, ExtractParams::default().low_contrast);
     assert!(toml::from_str::<ExtractParams>("line_width = 6.0").is_err());
     let camera = Camera::with_fov(10, 10, 1.0);
@@ -469,9 +608,9 @@ fn real_pair_finds_the_stripe_on_the_bust_only() {
     let load = |name: &str| image::open(dir.join(name)).expect(name).to_rgb8();
     let (frame, off) = (load("laser.png"), load("laser_background.png"));
     let camera = Camera::with_fov(frame.width(), frame.height(), 1.0);
-    // The stripe is saturated with a flat top ~8 px wide and ~12 px at half maximum.
+    // The stripe is saturated with a flat top ~8 px wide and ~12 px at half maximum;
+    // the default parameters measure its width.
     let params = ExtractParams {
-        line_width_px: 10.0,
         lasers: LaserColour::preset("red").expect("preset"),
         ..ExtractParams::default()
     };

@@ -36,7 +36,8 @@ pub struct Args {
     /// Laser colours, overriding the config: red-green, blue-green, red, green or blue.
     #[arg(long)]
     lasers: Option<String>,
-    /// Expected stripe width in pixels (full width at half maximum), overriding the config.
+    /// Stripe width in pixels (full width at half maximum), overriding the config; by
+    /// default the width is measured per tile.
     #[arg(long)]
     line_width_px: Option<f64>,
 }
@@ -52,7 +53,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         })?;
     }
     if let Some(w) = args.line_width_px {
-        params.line_width_px = w;
+        params.line_width_px = Some(w);
     }
     let frame = load_rgb(&args.input)?;
     let background = match &args.background {
@@ -166,7 +167,7 @@ mod tests {
             out: dir.path().join("curves.json"),
             overlay: Some(dir.path().join("overlay.png")),
             lasers: Some("red".into()),
-            line_width_px: Some(10.0),
+            line_width_px: None,
         };
         run(args).expect("extract");
         let file = CurvesFile::load(&dir.path().join("curves.json")).expect("curves file");
@@ -189,7 +190,7 @@ mod tests {
     #[test]
     fn config_extract_table() {
         let p = parse_params("[solve]\nx = 1\n[extract]\nline_width_px = 7.0\n").expect("parse");
-        assert_eq!(p.line_width_px, 7.0);
+        assert_eq!(p.line_width_px, Some(7.0));
         let p = parse_params("[solve]\nx = 1\n").expect("parse");
         assert_eq!(p, ExtractParams::default());
         let err = parse_params("[extract]\nline_width = 7.0\n").expect_err("unknown key");
