@@ -173,6 +173,28 @@ fn main() -> anyhow::Result<()> {
             );
         }
     }
+    if args.iter().any(|a| a == "-f") {
+        for c in 0..n {
+            if sol.planes[c].is_none() || global.contains(&(c as u32)) {
+                continue;
+            }
+            let (mut tot, mut rej) = (0, 0);
+            for (i, k) in crossings.iter().enumerate() {
+                let o = if k.a as usize == c {
+                    k.b
+                } else if k.b as usize == c {
+                    k.a
+                } else {
+                    continue;
+                };
+                if sol.planes[o as usize].is_some() && k.sin_angle >= config.solve.min_sin_angle {
+                    tot += 1;
+                    rej += usize::from(sol.rejected_crossings.contains(&i));
+                }
+            }
+            println!("F {c} {:.3} {:.2e}", rej as f64 / tot.max(1) as f64, err[c]);
+        }
+    }
     // Why the others failed.
     let mut reasons = std::collections::BTreeMap::<String, usize>::new();
     for c in 0..n {
