@@ -29,6 +29,12 @@ pub struct FitContext {
     /// Without a solved partner, the inlier crossings must be off one image line by
     /// this much ([`super::subset::bend`]).
     pub min_bend: f64,
+    /// Least spread of a minimal sample of the consensus start: the smallest singular
+    /// value of its unit rows (about the smallest height of the triangle of the rays,
+    /// normalised units). Crossings nearly on one image line give a plane turned at
+    /// random about their 3D line, which agrees with every crossing on that line and
+    /// would win the vote with a wild norm. Zero takes every sample.
+    pub min_sample_spread: f64,
 }
 
 /// A fitted plane and the crossings judged outliers.
@@ -151,14 +157,95 @@ pub fn fit_plane(
     })
 }
 
-/// Most trials of the consensus start per curve.
+/// Most trials of the consensus start per curve (each of triples and, with a solved
+/// partner, of pairs).
 const CONSENSUS_TRIALS: usize = 64;
 
-/// The plane through three crossings (`v · u_m = v_j · u_m`, m = 1..3) that agrees with
-/// the most crossings within `k σ_img` (ties: the smaller truncated squared error), over
-/// all triples or `CONSENSUS_TRIALS` drawn ones. A least-squares start would let a wrong
-/// crossing turn the plane about its 3D line, which crossings nearly on one image line
-/// barely resist. `None` with fewer than four crossings.
+/// The plane of a minimal sample, rows `r · v = d` (unit `r` up to scale), if its
+/// smallest singular value over unit rows is at least `min_sv`.
+fn sample_plane(rows: [(Vector3<f64>, f64); 3], min_sv: f64) -> Option<Vector3<f64>> {
+    let unit: Vec<(Vector3<f64>, f64)> = rows
+        .iter()
+        .map(|(r, d)| {
+            let n = r.norm();
+            (r / n, d / n)
+        })
+        .collect();
+    let a = Matrix3::from_rows(&[
+        unit[0].0.transpose(),
+        unit[1].0.transpose(),
+        unit[2].0.transpose(),
+    ]);
+    let sv = a.singular_values();
+    if sv.min().is_nan() || sv.min() < min_sv {
+        return None;
+    }
+    let v = a
+        .lu()
+        .solve(&Vector3::new(unit[0].1, unit[1].1, unit[2].1))?;
+    v.iter().all(|x| x.is_finite()).then_some(v)
+}
+
+/// A fixed sequence of `count` distinct index tuples below `m`: all of them when there
+/// are at most `CONSENSUS_TRIALS`, else drawn (the same problem always gives the same
+/// planes).
+fn samples<const K: usize>(m: usize) -> Vec<[usize; K]> {
+    let mut out = Vec::new();
+    if m < K {
+        return out;
+    }
+    let total: usize = (0..K).map(|i| m - i).product::<usize>() / (1..=K).product::<usize>();
+    if total <= CONSENSUS_TRIALS {
+        let mut t = [0usize; K];
+        fn rec<const K: usize>(
+            d: usize,
+            from: usize,
+            m: usize,
+            t: &mut [usize; K],
+            out: &mut Vec<[usize; K]>,
+        ) {
+            if d == K {
+                out.push(*t);
+                return;
+            }
+            for i in from..m {
+                t[d] = i;
+                rec(d + 1, i + 1, m, t, out);
+            }
+        }
+        rec(0, 0, m, &mut t, &mut out);
+        return out;
+    }
+    let mut state = 0x2545_F491_4F6C_DD1Du64 ^ (m as u64) ^ (((K as u64) ^ 3) << 32);
+    let mut next = |n: usize| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state % n as u64) as usize
+    };
+    let mut tries = 0;
+    while out.len() < CONSENSUS_TRIALS && tries < 16 * CONSENSUS_TRIALS {
+        tries += 1;
+        let mut t = [0usize; K];
+        for x in t.iter_mut() {
+            *x = next(m);
+        }
+        if (0..K).all(|i| (i + 1..K).all(|j| t[i] != t[j])) {
+            out.push(t);
+        }
+    }
+    out
+}
+
+/// The plane of a minimal sample that agrees with the most crossings within `k σ_img`
+/// (ties: the smaller truncated squared error). Samples are triples of crossings
+/// (`v · u_m = v_j · u_m`) and, with a solved partner, pairs of crossings with the
+/// partner's orthogonality `v · D² v_p = 0`, which holds the plane even when all its
+/// crossings lie on one image line (a curve on one flat surface). Samples nearly on one
+/// image line are skipped ([`FitContext::min_sample_spread`]). A least-squares start would let
+/// a wrong crossing turn the plane about its 3D line, which crossings nearly on one
+/// image line barely resist. `None` with fewer than four crossings or when no sample
+/// is well conditioned.
 fn consensus_start(
     crossings: &[Crossing],
     known: &[(usize, Vector3<f64>)],
@@ -171,47 +258,26 @@ fn consensus_start(
         return None;
     }
     let thr = ctx.outlier_k * ctx.sigma_img;
+    let min_sv = ctx.min_sample_spread;
     let row = |i: usize| {
         let c = &crossings[known[i].0];
         let u = Vector3::new(c.u[0], c.u[1], 1.0);
         (u, known[i].1.dot(&u))
     };
-    let total = m * (m - 1) * (m - 2) / 6;
-    let mut triples = Vec::new();
-    if total <= CONSENSUS_TRIALS {
-        for a in 0..m {
-            for b in a + 1..m {
-                for c in b + 1..m {
-                    triples.push([a, b, c]);
-                }
-            }
-        }
-    } else {
-        // A fixed sequence: the same problem always gives the same planes.
-        let mut state = 0x2545_F491_4F6C_DD1Du64 ^ m as u64;
-        let mut next = |n: usize| {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state % n as u64) as usize
-        };
-        while triples.len() < CONSENSUS_TRIALS {
-            let t = [next(m), next(m), next(m)];
-            if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
-                triples.push(t);
-            }
-        }
+    let mut candidates: Vec<Vector3<f64>> = samples::<3>(m)
+        .into_iter()
+        .filter_map(|t| sample_plane([row(t[0]), row(t[1]), row(t[2])], min_sv))
+        .collect();
+    if let Some(vp) = partner {
+        let ortho = (vp.component_mul(&d).component_mul(&d), 0.0);
+        candidates.extend(
+            samples::<2>(m)
+                .into_iter()
+                .filter_map(|t| sample_plane([row(t[0]), row(t[1]), ortho], min_sv)),
+        );
     }
     let mut best: Option<(usize, f64, Vector3<f64>)> = None;
-    for t in triples {
-        let (r0, r1, r2) = (row(t[0]), row(t[1]), row(t[2]));
-        let a = Matrix3::from_rows(&[r0.0.transpose(), r1.0.transpose(), r2.0.transpose()]);
-        let Some(v) = a.lu().solve(&Vector3::new(r0.1, r1.1, r2.1)) else {
-            continue;
-        };
-        if !v.iter().all(|x| x.is_finite()) {
-            continue;
-        }
+    for v in candidates {
         let (mut count, mut cost) = (0usize, 0.0);
         for (k, vj) in known {
             let e = sampson(&v, vj, crossings[*k].u).map_or(f64::INFINITY, |(e, _)| e.abs());
@@ -267,6 +333,7 @@ mod tests {
             outlier_k: 4.0,
             min_crossings: 3,
             min_bend: 1e-3,
+            min_sample_spread: 4e-9,
         };
         let fit = fit_plane(&cr, &known, Some(scan.planes[1]), &ctx, None).expect("fit");
         let truth = scan.planes[0];
@@ -279,5 +346,63 @@ mod tests {
         assert!(fit.outliers.is_empty());
         // Two crossings on one facet leave the plane free without its partner.
         assert!(fit_plane(&cr, &known[..2], None, &ctx, None).is_none());
+    }
+
+    #[test]
+    fn crossings_on_one_image_line_and_a_solved_partner_fix_the_plane() {
+        // The curve lies on one flat wall: its crossings are on one image line, so only
+        // the partner's orthogonality holds the plane's turn about its 3D line.
+        let v = Vector3::new(0.3, -0.2, 0.5);
+        let wall = Vector3::new(0.05, 0.1, 0.25);
+        let line_dir = v.cross(&wall);
+        let a_point = {
+            // A point on both planes: least-norm solution of [v; wall] X = [1; 1].
+            let m = nalgebra::Matrix2x3::from_rows(&[v.transpose(), wall.transpose()]);
+            m.transpose()
+                * (m * m.transpose()).try_inverse().expect("planes cross")
+                * nalgebra::Vector2::new(1.0, 1.0)
+        };
+        let partner = {
+            let p: Vector3<f64> = v.cross(&Vector3::new(1.0, 0.4, -0.3));
+            p / p.dot(&(a_point + 4.0 * line_dir))
+        };
+        assert!(v.dot(&partner).abs() < 1e-12);
+        let mut crossings = Vec::new();
+        let mut known = Vec::new();
+        for k in 0..12 {
+            let x = a_point + line_dir * (k as f64 * 0.7 - 3.0);
+            assert!(x.z > 0.0);
+            let u = x / x.z;
+            let uu = Vector3::new(u.x, u.y, 1.0);
+            // Some other plane through the same point.
+            let tilt = Vector3::new(0.2 * k as f64, 1.0, -0.3).cross(&uu);
+            crossings.push(Crossing {
+                a: 0,
+                b: k + 2,
+                // Noise of 1e-5 across the line: collinear triples then give planes
+                // turned at random about it.
+                u: [u.x, u.y + 1e-5 * ((k * 7 % 5) as f64 - 2.0)],
+                sin_angle: 1.0,
+            });
+            known.push((k as usize, v + tilt));
+        }
+        assert!(crate::solve::subset::bend(crossings.iter().map(|c| c.u)) < 1e-4);
+        let ctx = FitContext {
+            focal_scale: 1.0,
+            sigma_img: 1e-5,
+            sigma_ortho: 1e-5,
+            outlier_k: 4.0,
+            min_crossings: 3,
+            min_bend: 1e-3,
+            min_sample_spread: 4e-5,
+        };
+        let fit = fit_plane(&crossings, &known, Some(partner), &ctx, None).expect("fit");
+        assert!(
+            (fit.plane - v).norm() < 1e-3 * v.norm(),
+            "{} vs {v}",
+            fit.plane
+        );
+        // Without the partner the plane is free: no fit.
+        assert!(fit_plane(&crossings, &known, None, &ctx, None).is_none());
     }
 }

@@ -51,6 +51,14 @@ use subset::{adjacency, select_global, Subset};
 
 /// Smallest noise level assumed for any residual: rounding, not measurement.
 const NOISE_FLOOR: f64 = 1e-9;
+/// Least bend ([`subset::bend`]) of an extended curve's crossings without a solved
+/// partner, in units of the measured Sampson noise `σ_img` (when below
+/// [`SolveParams::min_curve_bend`]): the plane's turn about its 3D line is then known to
+/// about `σ_img / bend` radians over the spread of its crossings.
+const EXTEND_BEND_SIGMA: f64 = 20.0;
+/// Least spread of a minimal sample in the extension's consensus start, in units of
+/// `σ_img` (see [`extend::FitContext::min_sample_spread`]).
+const MIN_SAMPLE_SPREAD_SIGMA: f64 = 4.0;
 /// Sampson residual scale from the median absolute residual of a Gaussian.
 const MAD_TO_SIGMA: f64 = 1.4826;
 /// Cauchy weight scale in robust standard deviations (95 % efficiency on Gaussian noise).
@@ -581,7 +589,10 @@ pub fn solve(problem: &Problem, params: &SolveParams) -> Result<Solution, SolveE
         sigma_ortho: orth.rms_rad.max(NOISE_FLOOR),
         outlier_k: params.outlier_mad_k,
         min_crossings: params.min_crossings_per_plane,
-        min_bend: params.min_curve_bend,
+        min_bend: params
+            .min_curve_bend
+            .min(EXTEND_BEND_SIGMA * global.sigma_img),
+        min_sample_spread: MIN_SAMPLE_SPREAD_SIGMA * global.sigma_img,
     };
     let (rc, rv) = extend_and_refine(
         problem,

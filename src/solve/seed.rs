@@ -162,6 +162,8 @@ fn solve_and_grow(
         outlier_k: params.outlier_mad_k,
         min_crossings: 4,
         min_bend: params.min_curve_bend,
+        // The seed's noise is a rough one: every sample may vote.
+        min_sample_spread: 0.0,
     };
     let adj = adjacency(problem.num_curves, cr, active);
     let mut failed = vec![false; problem.num_curves];
