@@ -50,6 +50,7 @@ fn global_solve(c: &mut Criterion) {
         crossings.len()
     );
     let problem = Problem {
+        focal_px: 1000.0,
         num_curves: scan.planes.len(),
         crossings: &crossings,
         partner: &scan.partner,

@@ -52,6 +52,7 @@ fn main() -> anyhow::Result<()> {
         .map(|&(fr, l)| Vector3::from(sim.truth.frames[fr as usize].planes[l as usize]))
         .collect();
     let problem = Problem {
+        focal_px: 1000.0,
         num_curves: unknowns.len(),
         crossings: &crossings,
         partner: &partner,
@@ -225,7 +226,7 @@ fn main() -> anyhow::Result<()> {
                 3..=5 => "3-5".to_string(),
                 _ => "6+".to_string(),
             },
-            if b >= config.solve.min_curve_bend {
+            if b >= (config.solve.min_curve_bend_px / sim.camera.fx) {
                 "ok"
             } else {
                 "low"
@@ -245,7 +246,7 @@ fn main() -> anyhow::Result<()> {
                 sigma_ortho: sol.orthogonality_rms_deg.to_radians(),
                 outlier_k: config.solve.outlier_mad_k,
                 min_crossings: 3,
-                min_bend: config.solve.min_curve_bend,
+                min_bend: (config.solve.min_curve_bend_px / sim.camera.fx),
                 min_sample_spread: 4.0 * sol.sigma_img,
             };
             let known: Vec<(usize, Vector3<f64>)> = crossings

@@ -390,6 +390,7 @@ pub fn reconstruct_curves(
         num_curves: planes.len(),
         crossings: &crossings,
         partner: &partner,
+        focal_px: camera.fx.max(camera.fy),
     };
     let solution: Solution = match source {
         PlaneSource::SelfCalibrated => solve::solve(&problem, &config.solve)?,

@@ -94,10 +94,15 @@ pub struct SolveParams {
     /// Crossings at angles whose sine is below this are ignored.
     pub min_sin_angle: f64,
     /// A curve enters the global solve only if its crossings are off one image line by
-    /// at least this RMS distance (normalised units; [`subset::bend`]): crossings on one
-    /// line (a curve on a flat wall) leave its plane free to turn about its 3D line.
-    /// Must be well above the crossing noise; the default is about 5 px at f = 1000 px.
-    pub min_curve_bend: f64,
+    /// at least this RMS distance, in pixels of the ideal camera ([`subset::bend`]
+    /// × focal length): crossings on one line (a curve on a flat wall) leave its plane
+    /// free to turn about its 3D line. Must be well above the crossing noise. In
+    /// pixels so that one setting serves every resolution and field of view.
+    pub min_curve_bend_px: f64,
+    /// `min_curve_bend_px` in normalised units, set by [`solve`] from the problem's
+    /// focal length.
+    #[serde(skip)]
+    pub(crate) min_curve_bend: f64,
     /// Outlier threshold in robust standard deviations (`1.4826 × MAD`) of the
     /// crossings' Sampson residuals.
     pub outlier_mad_k: f64,
@@ -119,7 +124,8 @@ impl Default for SolveParams {
             min_crossings_per_plane: 3,
             min_global_crossings: 6,
             min_sin_angle: 0.1,
-            min_curve_bend: 0.005,
+            min_curve_bend_px: 3.0,
+            min_curve_bend: 3.0 / 1000.0,
             outlier_mad_k: 4.0,
             estimate_focal: false,
             robust_rounds: 12,
@@ -136,6 +142,9 @@ pub struct Problem<'a> {
     pub crossings: &'a [Crossing],
     /// Per curve: the other curve of its cross, if seen.
     pub partner: &'a [Option<u32>],
+    /// Focal length (pixels) of the normalisation, to turn pixel settings into
+    /// normalised units.
+    pub focal_px: f64,
 }
 
 /// The solved planes and what the solver judged on the way.
@@ -500,6 +509,16 @@ pub fn extend_and_refine(
 
 /// Solves the plane of every curve it can (see the module docs for the stages).
 pub fn solve(problem: &Problem, params: &SolveParams) -> Result<Solution, SolveError> {
+    if !(problem.focal_px.is_finite() && problem.focal_px > 0.0) {
+        return Err(SolveError::InvalidProblem(format!(
+            "focal length {} px is not positive",
+            problem.focal_px
+        )));
+    }
+    let params = &SolveParams {
+        min_curve_bend: params.min_curve_bend_px / problem.focal_px,
+        ..params.clone()
+    };
     let n_curves = problem.num_curves;
     let cr = problem.crossings;
     if problem.partner.len() != n_curves {
