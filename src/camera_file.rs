@@ -11,9 +11,9 @@ fn list(values: &[f64]) -> String {
     format!("[ {} ]", items.join(", "))
 }
 
-/// The camera as OpenCV's `cv::FileStorage` writes it (`%YAML:1.0`, `!!opencv-matrix`).
-pub fn to_opencv_yaml(camera: &Camera) -> String {
-    let k = [
+/// The 3x3 camera matrix, row-major.
+fn camera_matrix(camera: &Camera) -> [f64; 9] {
+    [
         camera.fx,
         camera.skew,
         camera.cx,
@@ -23,7 +23,12 @@ pub fn to_opencv_yaml(camera: &Camera) -> String {
         0.0,
         0.0,
         1.0,
-    ];
+    ]
+}
+
+/// The camera as OpenCV's `cv::FileStorage` writes it (`%YAML:1.0`, `!!opencv-matrix`).
+pub fn to_opencv_yaml(camera: &Camera) -> String {
+    let k = camera_matrix(camera);
     let d = camera.distortion.to_vec();
     format!(
         "%YAML:1.0\n---\nimage_width: {}\nimage_height: {}\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: {}\ndistortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: {}\n   dt: d\n   data: {}\n",
@@ -38,17 +43,7 @@ pub fn to_opencv_yaml(camera: &Camera) -> String {
 /// The camera as ROS `camera_calibration` writes `camera_info` YAML (model `plumb_bob`,
 /// or `rational_polynomial` when a rational term is set).
 pub fn to_ros_yaml(camera: &Camera, camera_name: &str) -> String {
-    let k = [
-        camera.fx,
-        camera.skew,
-        camera.cx,
-        0.0,
-        camera.fy,
-        camera.cy,
-        0.0,
-        0.0,
-        1.0,
-    ];
+    let k = camera_matrix(camera);
     let p = [
         camera.fx,
         camera.skew,

@@ -27,7 +27,6 @@ pub mod camera_file;
 pub mod cloud;
 pub mod compare;
 pub mod config;
-pub mod error;
 pub mod extract;
 pub mod intersect;
 pub mod pfm;
