@@ -228,27 +228,24 @@ fn bad_inputs_are_named_in_the_error() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let sim = fixtures().join("sim-bricks");
     // A missing camera file.
-    let err = stderr_of_failure(
-        crossline()
-            .args(["reconstruct", "--input"])
-            .arg(&sim)
-            .args(["--camera", "no-such-camera.yml", "--out"])
-            .arg(tmp.path().join("x.ply")),
-    );
+    let out = tmp.path().join("x.ply");
+    let reconstruct = |input: &Path, camera: &Path| {
+        let mut cmd = crossline();
+        cmd.args(["reconstruct", "--input"])
+            .arg(input)
+            .arg("--camera")
+            .arg(camera)
+            .arg("--out")
+            .arg(&out);
+        cmd
+    };
+    let err = stderr_of_failure(&mut reconstruct(&sim, Path::new("no-such-camera.yml")));
     assert!(err.contains("no-such-camera.yml"), "{err}");
     // A camera file with a broken matrix: file and key.
     let bad = tmp.path().join("bad.yml");
     let text = std::fs::read_to_string(sim.join("camera.yml")).expect("camera");
     std::fs::write(&bad, text.replace("cols: 3", "cols: 4")).expect("write");
-    let err = stderr_of_failure(
-        crossline()
-            .args(["reconstruct", "--input"])
-            .arg(&sim)
-            .arg("--camera")
-            .arg(&bad)
-            .arg("--out")
-            .arg(tmp.path().join("x.ply")),
-    );
+    let err = stderr_of_failure(&mut reconstruct(&sim, &bad));
     assert!(
         err.contains("bad.yml") && err.contains("camera_matrix"),
         "{err}"
@@ -257,15 +254,9 @@ fn bad_inputs_are_named_in_the_error() {
     let cfg = tmp.path().join("c.toml");
     std::fs::write(&cfg, "[solve]\nmax_global_plane = 3\n").expect("write");
     let err = stderr_of_failure(
-        crossline()
-            .args(["reconstruct", "--input"])
-            .arg(&sim)
-            .arg("--camera")
-            .arg(sim.join("camera.yml"))
+        reconstruct(&sim, &sim.join("camera.yml"))
             .arg("--config")
-            .arg(&cfg)
-            .arg("--out")
-            .arg(tmp.path().join("x.ply")),
+            .arg(&cfg),
     );
     assert!(
         err.contains("c.toml:2") && err.contains("max_global_plane"),
@@ -287,14 +278,6 @@ fn bad_inputs_are_named_in_the_error() {
     // A folder with no frames.
     let empty = tmp.path().join("empty");
     std::fs::create_dir(&empty).expect("mkdir");
-    let err = stderr_of_failure(
-        crossline()
-            .args(["reconstruct", "--input"])
-            .arg(&empty)
-            .arg("--camera")
-            .arg(sim.join("camera.yml"))
-            .arg("--out")
-            .arg(tmp.path().join("x.ply")),
-    );
+    let err = stderr_of_failure(&mut reconstruct(&empty, &sim.join("camera.yml")));
     assert!(err.contains("no frames"), "{err}");
 }
