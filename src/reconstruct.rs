@@ -23,6 +23,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
+use crate::capture::dump::{DumpError, DumpHeader, DumpReader};
 use crate::cloud::{self, CurvePoints, ScaleMode, TriangulateStats};
 use crate::config::Config;
 use crate::extract::{Background, Curve, Extractor};
@@ -73,6 +74,8 @@ pub enum ReconstructError {
     Extract(#[from] crate::extract::ExtractError),
     #[error("solving the planes")]
     Solve(#[from] solve::SolveError),
+    #[error("reading the dump")]
+    Dump(#[from] DumpError),
     #[error("internal error: {0}")]
     Internal(&'static str),
     #[error("fixing the scale")]
@@ -120,13 +123,77 @@ pub fn list_frames(dir: &Path) -> Result<Vec<PathBuf>, ReconstructError> {
     Ok(frames)
 }
 
-fn decode(path: &Path, camera: &Camera) -> Result<RgbImage, ReconstructError> {
-    let img = image::open(path)
-        .map_err(|source| ReconstructError::Decode {
-            path: path.to_path_buf(),
-            source,
-        })?
-        .into_rgb8();
+/// Where the frames come from: image files, or a recorded dump
+/// ([`crate::capture::dump`]).
+pub enum FrameSource {
+    Files(Vec<PathBuf>),
+    Dump {
+        path: PathBuf,
+        header: DumpHeader,
+        offsets: Vec<u64>,
+    },
+}
+
+impl FrameSource {
+    /// A folder of images, or a dump file. A dump cut off or damaged after some whole
+    /// frames still opens; the error that stopped the scan is returned beside it.
+    pub fn open(input: &Path) -> Result<(Self, Option<DumpError>), ReconstructError> {
+        if input.is_dir() {
+            return Ok((Self::Files(list_frames(input)?), None));
+        }
+        let (header, offsets, stopped) = DumpReader::index(input)?;
+        if offsets.is_empty() {
+            return Err(match stopped {
+                Some(e) => e.into(),
+                None => ReconstructError::NoFrames(input.to_path_buf()),
+            });
+        }
+        Ok((
+            Self::Dump {
+                path: input.to_path_buf(),
+                header,
+                offsets,
+            },
+            stopped,
+        ))
+    }
+
+    pub fn len(&self) -> usize {
+        match self {
+            Self::Files(f) => f.len(),
+            Self::Dump { offsets, .. } => offsets.len(),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Frame `i`, decoded to RGB and checked against the camera's image size.
+    pub fn decode(&self, i: usize, camera: &Camera) -> Result<RgbImage, ReconstructError> {
+        match self {
+            Self::Files(files) => decode(&files[i], camera),
+            Self::Dump {
+                path,
+                header,
+                offsets,
+            } => {
+                let record = DumpReader::read_at(path, offsets[i], i)?;
+                let img = crate::capture::dump::decode_rgb(header, &record.payload).map_err(
+                    |message| DumpError::Decode {
+                        path: path.clone(),
+                        index: i,
+                        fourcc: String::from_utf8_lossy(&header.fourcc).into_owned(),
+                        message,
+                    },
+                )?;
+                check_size(img, path, camera)
+            }
+        }
+    }
+}
+
+fn check_size(img: RgbImage, path: &Path, camera: &Camera) -> Result<RgbImage, ReconstructError> {
     if img.width() != camera.width || img.height() != camera.height {
         return Err(ReconstructError::Size {
             path: path.to_path_buf(),
@@ -137,6 +204,16 @@ fn decode(path: &Path, camera: &Camera) -> Result<RgbImage, ReconstructError> {
         });
     }
     Ok(img)
+}
+
+fn decode(path: &Path, camera: &Camera) -> Result<RgbImage, ReconstructError> {
+    let img = image::open(path)
+        .map_err(|source| ReconstructError::Decode {
+            path: path.to_path_buf(),
+            source,
+        })?
+        .into_rgb8();
+    check_size(img, path, camera)
 }
 
 /// Seconds spent in each stage.
@@ -256,7 +333,7 @@ impl<F: Fn(&str, usize, usize) + Sync> Progress for F {
 /// Runs the whole offline pipeline over image files.
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct_files(
-    frames: &[PathBuf],
+    frames: &FrameSource,
     background: Option<&Path>,
     camera: &Camera,
     config: &Config,
@@ -270,12 +347,12 @@ pub fn reconstruct_files(
         Some(path) => Background::from_image(decode(path, camera)?),
         None => {
             let k = config.background.median_frames.clamp(1, frames.len());
-            let picks: Vec<&PathBuf> = (0..k)
-                .map(|i| &frames[(i * frames.len()) / k + frames.len() / (2 * k)])
+            let picks: Vec<usize> = (0..k)
+                .map(|i| (i * frames.len()) / k + frames.len() / (2 * k))
                 .collect();
             let images = picks
                 .par_iter()
-                .map(|p| decode(p, camera))
+                .map(|&i| frames.decode(i, camera))
                 .collect::<Result<Vec<_>, _>>()?;
             let refs: Vec<&RgbImage> = images.iter().collect();
             Background::median_of(&refs)?
@@ -288,15 +365,15 @@ pub fn reconstruct_files(
     // (they own their scratch buffers), which cannot fail any more.
     Extractor::new(&config.extract, camera)?;
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let per_frame: Vec<Vec<Curve>> = frames
-        .par_iter()
+    let per_frame: Vec<Vec<Curve>> = (0..frames.len())
+        .into_par_iter()
         .map_init(
             || Extractor::new(&config.extract, camera).ok(),
-            |extractor, path| {
+            |extractor, i| {
                 let Some(extractor) = extractor.as_mut() else {
                     return Err(ReconstructError::Internal("extractor construction failed"));
                 };
-                let img = decode(path, camera)?;
+                let img = frames.decode(i, camera)?;
                 let curves = extractor.extract(&img, &background);
                 let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
                 progress.update("extract", n, frames.len());

@@ -281,3 +281,91 @@ fn bad_inputs_are_named_in_the_error() {
     let err = stderr_of_failure(&mut reconstruct(&empty, &sim.join("camera.yml")));
     assert!(err.contains("no frames"), "{err}");
 }
+
+#[test]
+fn a_simulated_dump_reconstructs_like_its_frames_and_a_cut_one_still_reads() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (files, dump) = (tmp.path().join("files"), tmp.path().join("dump"));
+    for (format, out) in [("jpeg", &files), ("dump", &dump)] {
+        run_ok(
+            crossline()
+                .args([
+                    "simulate", "--scene", "bricks", "--frames", "100", "--width", "480",
+                ])
+                .args([
+                    "--seed",
+                    "3",
+                    "--jpeg-quality",
+                    "90",
+                    "--format",
+                    format,
+                    "--out",
+                ])
+                .arg(out),
+        );
+    }
+    let reconstruct = |input: &Path, out: &Path| {
+        crossline()
+            .args(["reconstruct", "--scale", "1", "--input"])
+            .arg(input)
+            .arg("--camera")
+            .arg(files.join("camera.yml"))
+            .arg("--out")
+            .arg(out)
+            .output()
+            .expect("spawn")
+    };
+    let (a, b) = (tmp.path().join("a.ply"), tmp.path().join("b.ply"));
+    let ra = reconstruct(&files, &a);
+    let rb = reconstruct(&dump.join("frames.dump"), &b);
+    // The same JPEG frames through either container: the same cloud.
+    assert!(
+        ra.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ra.stderr)
+    );
+    assert!(
+        rb.status.success(),
+        "{}",
+        String::from_utf8_lossy(&rb.stderr)
+    );
+    let (ca, cb) = (read_ply(&a).expect("a"), read_ply(&b).expect("b"));
+    assert!(ca.len() > 1000);
+    assert_eq!(ca, cb);
+    // Cut the dump inside its last frame: the whole frames before it are used, and the
+    // log says where the recording stopped.
+    let bytes = std::fs::read(dump.join("frames.dump")).expect("dump");
+    let cut = tmp.path().join("cut.dump");
+    std::fs::write(&cut, &bytes[..bytes.len() - 1000]).expect("write");
+    let out = crossline()
+        .args(["reconstruct", "--input"])
+        .arg(&cut)
+        .arg("--camera")
+        .arg(files.join("camera.yml"))
+        .arg("--out")
+        .arg(tmp.path().join("c.ply"))
+        .output()
+        .expect("spawn");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("99 whole frames") && err.contains("cut off"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+    // Not a dump at all.
+    let junk = tmp.path().join("junk.dump");
+    std::fs::write(&junk, b"hello").expect("write");
+    let err = stderr_of_failure(
+        crossline()
+            .args(["reconstruct", "--input"])
+            .arg(&junk)
+            .arg("--camera")
+            .arg(files.join("camera.yml"))
+            .arg("--out")
+            .arg(tmp.path().join("d.ply")),
+    );
+    assert!(
+        err.contains("junk.dump") && err.contains("not a crossline dump"),
+        "{err}"
+    );
+}

@@ -84,7 +84,7 @@
 //! # Simulation folder (`write_sim_dir`, format version 1)
 //! | file | content |
 //! |---|---|
-//! | `frame_000000.png` … | RGB frames, 8 bit (`.jpg` with `--format jpeg`) |
+//! | `frame_000000.png` … | RGB frames, 8 bit (`.jpg` with `--format jpeg`; one `frames.dump` with `--format dump`) |
 //! | `background.png` | the same view with the lasers off (own noise) |
 //! | `camera.yml`, `camera_info.yaml` | the camera, OpenCV and ROS formats |
 //! | `scene.toml` | the scene as rendered (overrides applied), re-loadable |
@@ -309,6 +309,9 @@ pub enum FrameFormat {
     /// `frame_NNNNNN.jpg` at this quality (1-100): what an MJPEG camera delivers, and
     /// ten times smaller, for fixtures.
     Jpeg { quality: u8 },
+    /// One `frames.dump` in the recording format ([`crate::capture::dump`]), MJPEG
+    /// buffers at this quality, 30 frames per second of driver time.
+    Dump { quality: u8 },
 }
 
 /// Encodes an image as JPEG and writes it.
@@ -321,6 +324,68 @@ pub fn write_jpeg(path: &Path, img: &RgbImage, quality: u8) -> Result<(), SimErr
             source,
         })?;
     std::fs::write(path, &buf).map_err(io_err(path))
+}
+
+/// Renders frames in parallel, in ordered batches, and appends them to one dump as
+/// MJPEG buffers; returns the lit mask.
+fn write_dump(
+    sim: &Simulator,
+    frames: usize,
+    path: &Path,
+    quality: u8,
+    progress: &(impl Fn(usize) + Sync),
+) -> Result<Vec<u8>, SimError> {
+    use crate::capture::dump::{DumpHeader, DumpWriter};
+    let cam = sim.camera();
+    let n = (cam.width * cam.height) as usize;
+    let dump_err = |e: crate::capture::dump::DumpError| SimError::Invalid {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    let header = DumpHeader {
+        fourcc: *b"MJPG",
+        width: cam.width,
+        height: cam.height,
+        bytes_per_line: 0,
+        interval_num: 1,
+        interval_den: 30,
+        device: "crossline simulate".into(),
+        card: sim.spec().name.clone(),
+    };
+    let mut writer = DumpWriter::create(path, &header).map_err(dump_err)?;
+    let mut lit = vec![0u8; n];
+    let batch = 2 * rayon::current_num_threads().max(1);
+    for start in (0..frames).step_by(batch) {
+        let rendered = (start..(start + batch).min(frames))
+            .into_par_iter()
+            .map(|i| {
+                let mut img = RgbImage::new(cam.width, cam.height);
+                let mut frame_lit = vec![0u8; n];
+                sim.render_frame_into(i, &mut img, Some(&mut frame_lit));
+                let mut jpeg = Vec::new();
+                image::codecs::jpeg::JpegEncoder::new_with_quality(
+                    &mut jpeg,
+                    quality.clamp(1, 100),
+                )
+                .encode_image(&img)
+                .map_err(|source| SimError::Image {
+                    path: path.to_path_buf(),
+                    source,
+                })?;
+                Ok((i, jpeg, frame_lit))
+            })
+            .collect::<Result<Vec<_>, SimError>>()?;
+        for (i, jpeg, frame_lit) in rendered {
+            let timestamp_nanos = i as u64 * 1_000_000_000 / 30;
+            writer
+                .write_frame(i as u32, timestamp_nanos, 0, &jpeg)
+                .map_err(dump_err)?;
+            lit.iter_mut().zip(&frame_lit).for_each(|(x, y)| *x |= *y);
+            progress(i + 1);
+        }
+    }
+    writer.finish().map_err(dump_err)?;
+    Ok(lit)
 }
 
 /// Renders `frames` frames and writes the whole simulation folder (see the module doc)
@@ -359,33 +424,38 @@ pub fn write_sim_dir_as(
 
     let n = (cam.width * cam.height) as usize;
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let lit = (0..frames)
-        .into_par_iter()
-        .try_fold(
-            || (vec![0u8; n], RgbImage::new(cam.width, cam.height)),
-            |(mut lit, mut img), i| {
-                sim.render_frame_into(i, &mut img, Some(&mut lit));
-                match format {
-                    FrameFormat::Png => {
-                        write_png_fast(&out.join(format!("frame_{i:06}.png")), &img)?
+    let lit = if let FrameFormat::Dump { quality } = format {
+        write_dump(sim, frames, &out.join("frames.dump"), quality, &progress)?
+    } else {
+        (0..frames)
+            .into_par_iter()
+            .try_fold(
+                || (vec![0u8; n], RgbImage::new(cam.width, cam.height)),
+                |(mut lit, mut img), i| {
+                    sim.render_frame_into(i, &mut img, Some(&mut lit));
+                    match format {
+                        FrameFormat::Png => {
+                            write_png_fast(&out.join(format!("frame_{i:06}.png")), &img)?
+                        }
+                        FrameFormat::Jpeg { quality } => {
+                            write_jpeg(&out.join(format!("frame_{i:06}.jpg")), &img, quality)?
+                        }
+                        FrameFormat::Dump { .. } => {}
                     }
-                    FrameFormat::Jpeg { quality } => {
-                        write_jpeg(&out.join(format!("frame_{i:06}.jpg")), &img, quality)?
-                    }
-                }
-                let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-                progress(d);
-                Ok::<_, SimError>((lit, img))
-            },
-        )
-        .map(|r| r.map(|(lit, _)| lit))
-        .try_reduce(
-            || vec![0u8; n],
-            |mut a, b| {
-                a.iter_mut().zip(&b).for_each(|(x, y)| *x |= *y);
-                Ok(a)
-            },
-        )?;
+                    let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                    progress(d);
+                    Ok::<_, SimError>((lit, img))
+                },
+            )
+            .map(|r| r.map(|(lit, _)| lit))
+            .try_reduce(
+                || vec![0u8; n],
+                |mut a, b| {
+                    a.iter_mut().zip(&b).for_each(|(x, y)| *x |= *y);
+                    Ok(a)
+                },
+            )?
+    };
 
     let truth = truth_of(sim, frames);
     let p = out.join("truth.json");

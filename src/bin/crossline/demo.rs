@@ -65,7 +65,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 
     println!("2/3 reconstructing without knowledge of the projector");
     let camera = crossline::camera_file::load(&sim_dir.join("camera.yml"))?;
-    let frames = reconstruct::list_frames(&sim_dir)?;
+    let frames = reconstruct::FrameSource::Files(reconstruct::list_frames(&sim_dir)?);
     let bar = crate::reconstruct::progress_bar(frames.len() as u64);
     let rec = reconstruct::reconstruct_files(
         &frames,

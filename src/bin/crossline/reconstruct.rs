@@ -25,8 +25,9 @@ use nalgebra::Vector3;
 #[derive(clap::Args)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
-    /// A folder of frames (.png/.jpg; `frame_*` files only when present), in name order.
-    #[arg(long, value_name = "DIR")]
+    /// A folder of frames (.png/.jpg; `frame_*` files only when present), in name
+    /// order, or a recorded dump (`crossline simulate --format dump` writes one).
+    #[arg(long, value_name = "DIR|DUMP")]
     input: PathBuf,
     /// Camera calibration: OpenCV FileStorage YAML, ROS camera_info YAML, or TOML with a
     /// [camera] table.
@@ -79,7 +80,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         config.solve.estimate_focal = true;
     }
     let scale = scale_mode(&args)?;
-    let frames = reconstruct::list_frames(&args.input)?;
+    let (frames, stopped) = reconstruct::FrameSource::open(&args.input)?;
+    if let Some(why) = stopped {
+        tracing::warn!("using the {} whole frames before: {why}", frames.len());
+    }
     tracing::info!(frames = frames.len(), input = %args.input.display(), "reconstructing");
     let known = match &args.true_planes {
         Some(dir) => Some(true_planes(dir, frames.len())?),

@@ -43,10 +43,11 @@ pub struct Args {
     /// Output folder (created if missing; existing files are overwritten).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
-    /// Frame file format: `png` (lossless) or `jpeg` (frame_NNNNNN.jpg at
-    /// --jpeg-quality, default 92: what an MJPEG camera delivers). `dump` comes with
-    /// the daemon.
-    #[arg(long, default_value = "png", value_name = "png|jpeg")]
+    /// Frame file format: `png` (lossless), `jpeg` (frame_NNNNNN.jpg at
+    /// --jpeg-quality, default 92: what an MJPEG camera delivers) or `dump` (one
+    /// DIR/frames.dump of MJPEG buffers in the recording format, for `reconstruct
+    /// --input DIR/frames.dump`).
+    #[arg(long, default_value = "png", value_name = "png|jpeg|dump")]
     format: String,
     /// Water turbidity: > 0 renders under water (attenuation, forward scatter, glow
     /// of the laser sheets) with the scene's scattering scaled by T; 1 is the scene's
@@ -81,9 +82,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         "jpeg" | "jpg" => FrameFormat::Jpeg {
             quality: args.jpeg_quality.unwrap_or(92),
         },
-        other => bail!(
-            "--format {other}: expected png or jpeg (the `dump` format comes with the daemon)"
-        ),
+        "dump" => FrameFormat::Dump {
+            quality: args.jpeg_quality.unwrap_or(92),
+        },
+        other => bail!("--format {other}: expected png, jpeg or dump"),
     };
     let mut spec = match builtin_scene(&args.scene) {
         Some(spec) => spec,
@@ -135,7 +137,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         // With JPEG frames the compression happens once, when they are written.
         jpeg_quality: match format {
             FrameFormat::Png => args.jpeg_quality,
-            FrameFormat::Jpeg { .. } => None,
+            FrameFormat::Jpeg { .. } | FrameFormat::Dump { .. } => None,
         },
     };
     let mut pool = rayon::ThreadPoolBuilder::new();

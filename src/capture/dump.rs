@@ -1,0 +1,649 @@
+//! The recording format for raw camera buffers ("dump"), version 1.
+//!
+//! A dump keeps every buffer exactly as the driver delivered it, with the driver's
+//! sequence number and timestamp, so a dive can be reprocessed later and dropped frames
+//! are visible. It is written as frames arrive, one self-checking record at a time: a
+//! crash or power loss leaves a file that reads up to its last whole frame, and the
+//! reader says where and why it stopped.
+//!
+//! All integers are little-endian.
+//!
+//! # File header
+//! | offset | size | field |
+//! |---|---|---|
+//! | 0 | 8 | magic `CRSLDUMP` |
+//! | 8 | 4 | format version (1) |
+//! | 12 | 4 | header length `H` in bytes (the whole header, CRC included) |
+//! | 16 | 4 | pixel format fourcc: `MJPG`, `YUYV` or `RGB3` |
+//! | 20 | 4 | width (pixels) |
+//! | 24 | 4 | height (pixels) |
+//! | 28 | 4 | bytes per line (0 for compressed formats) |
+//! | 32 | 4 | frame interval numerator (seconds) |
+//! | 36 | 4 | frame interval denominator |
+//! | 40 | 2 | length `n` of the device name |
+//! | 42 | n | device name, UTF-8 (e.g. `/dev/video0`) |
+//! | 42+n | 2 | length `m` of the card name |
+//! | 44+n | m | card name, UTF-8 (V4L2 `QUERYCAP` card) |
+//! | H−4 | 4 | CRC-32 (IEEE) of bytes `0..H−4` |
+//!
+//! # Records, one per buffer
+//! | offset | size | field |
+//! |---|---|---|
+//! | 0 | 4 | magic `FRAM` |
+//! | 4 | 4 | sequence number (the driver's) |
+//! | 8 | 8 | timestamp, nanoseconds (the driver's clock) |
+//! | 16 | 4 | V4L2 buffer flags |
+//! | 20 | 4 | bytes used `b` |
+//! | 24 | b | payload |
+//! | 24+b | 4 | CRC-32 (IEEE) of bytes `0..24+b` of the record |
+
+use std::fs::File;
+use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+
+use image::RgbImage;
+
+pub const MAGIC: &[u8; 8] = b"CRSLDUMP";
+pub const RECORD_MAGIC: &[u8; 4] = b"FRAM";
+pub const VERSION: u32 = 1;
+/// Largest payload a record may claim (a 4K RGB frame is 25 MB): a larger length is
+/// taken for corruption rather than allocated.
+pub const MAX_PAYLOAD: u32 = 64 << 20;
+
+/// The negotiated stream, as recorded in the header.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DumpHeader {
+    pub fourcc: [u8; 4],
+    pub width: u32,
+    pub height: u32,
+    pub bytes_per_line: u32,
+    pub interval_num: u32,
+    pub interval_den: u32,
+    pub device: String,
+    pub card: String,
+}
+
+/// One recorded buffer.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Record {
+    pub sequence: u32,
+    pub timestamp_nanos: u64,
+    pub flags: u32,
+    pub payload: Vec<u8>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum DumpError {
+    #[error("cannot read or write dump {path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: not a crossline dump (expected magic CRSLDUMP at offset 0)")]
+    NotADump { path: PathBuf },
+    #[error("{path}: dump format version {found}, this crossline reads version {VERSION}")]
+    Version { path: PathBuf, found: u32 },
+    #[error("{path}: bad header: {message}")]
+    Header { path: PathBuf, message: String },
+    #[error("{path}: truncated at byte {offset} inside frame record {index} (after {index} whole frames): the recording was cut off")]
+    Truncated {
+        path: PathBuf,
+        offset: u64,
+        index: usize,
+    },
+    #[error("{path}: corrupted frame record {index} at byte {offset}: {reason}")]
+    Corrupt {
+        path: PathBuf,
+        offset: u64,
+        index: usize,
+        reason: String,
+    },
+    #[error("{path}: frame record {index}: cannot decode {fourcc} frame: {message}")]
+    Decode {
+        path: PathBuf,
+        index: usize,
+        fourcc: String,
+        message: String,
+    },
+}
+
+fn fourcc_str(f: [u8; 4]) -> String {
+    String::from_utf8_lossy(&f).into_owned()
+}
+
+impl DumpHeader {
+    fn to_bytes(&self) -> Vec<u8> {
+        let mut b = Vec::with_capacity(64 + self.device.len() + self.card.len());
+        b.extend_from_slice(MAGIC);
+        b.extend_from_slice(&VERSION.to_le_bytes());
+        let len = 42 + 2 + self.device.len() + self.card.len() + 4;
+        b.extend_from_slice(&(len as u32).to_le_bytes());
+        b.extend_from_slice(&self.fourcc);
+        for v in [
+            self.width,
+            self.height,
+            self.bytes_per_line,
+            self.interval_num,
+            self.interval_den,
+        ] {
+            b.extend_from_slice(&v.to_le_bytes());
+        }
+        for s in [&self.device, &self.card] {
+            b.extend_from_slice(&(s.len() as u16).to_le_bytes());
+            b.extend_from_slice(s.as_bytes());
+        }
+        let crc = crc32fast::hash(&b);
+        b.extend_from_slice(&crc.to_le_bytes());
+        b
+    }
+}
+
+/// Writes a dump record by record; each record goes to the file in one write.
+pub struct DumpWriter {
+    path: PathBuf,
+    file: BufWriter<File>,
+    record: Vec<u8>,
+    bytes: u64,
+}
+
+impl DumpWriter {
+    pub fn create(path: &Path, header: &DumpHeader) -> Result<Self, DumpError> {
+        let io = |source| DumpError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        if header.device.len() > u16::MAX as usize || header.card.len() > u16::MAX as usize {
+            return Err(DumpError::Header {
+                path: path.to_path_buf(),
+                message: "device or card name longer than 65535 bytes".into(),
+            });
+        }
+        let mut file = BufWriter::new(File::create(path).map_err(io)?);
+        let head = header.to_bytes();
+        file.write_all(&head).map_err(io)?;
+        file.flush().map_err(io)?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            file,
+            record: Vec::new(),
+            bytes: head.len() as u64,
+        })
+    }
+
+    /// Appends one buffer and hands it to the operating system, so that a crash of
+    /// this process loses no whole frame.
+    pub fn write_frame(
+        &mut self,
+        sequence: u32,
+        timestamp_nanos: u64,
+        flags: u32,
+        payload: &[u8],
+    ) -> Result<(), DumpError> {
+        if payload.len() > MAX_PAYLOAD as usize {
+            return Err(DumpError::Header {
+                path: self.path.clone(),
+                message: format!("frame of {} bytes exceeds {MAX_PAYLOAD}", payload.len()),
+            });
+        }
+        let r = &mut self.record;
+        r.clear();
+        r.extend_from_slice(RECORD_MAGIC);
+        r.extend_from_slice(&sequence.to_le_bytes());
+        r.extend_from_slice(&timestamp_nanos.to_le_bytes());
+        r.extend_from_slice(&flags.to_le_bytes());
+        r.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+        r.extend_from_slice(payload);
+        let crc = crc32fast::hash(r);
+        r.extend_from_slice(&crc.to_le_bytes());
+        let io = |source| DumpError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        self.file.write_all(r).map_err(io)?;
+        self.file.flush().map_err(io)?;
+        self.bytes += r.len() as u64;
+        Ok(())
+    }
+
+    /// Bytes written so far, header included.
+    pub fn bytes(&self) -> u64 {
+        self.bytes
+    }
+
+    pub fn finish(mut self) -> Result<(), DumpError> {
+        self.file.flush().map_err(|source| DumpError::Io {
+            path: self.path.clone(),
+            source,
+        })
+    }
+}
+
+/// Reads a dump record by record.
+pub struct DumpReader {
+    path: PathBuf,
+    file: std::io::BufReader<File>,
+    header: DumpHeader,
+    offset: u64,
+    index: usize,
+}
+
+fn read_exact_or_eof(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut got = 0;
+    while got < buf.len() {
+        match r.read(&mut buf[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(got)
+}
+
+impl DumpReader {
+    pub fn open(path: &Path) -> Result<Self, DumpError> {
+        let io = |source| DumpError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut file = std::io::BufReader::new(File::open(path).map_err(io)?);
+        let bad = |message: String| DumpError::Header {
+            path: path.to_path_buf(),
+            message,
+        };
+        let mut fixed = [0u8; 42];
+        let got = read_exact_or_eof(&mut file, &mut fixed).map_err(io)?;
+        if got < 8 || &fixed[..8] != MAGIC {
+            return Err(DumpError::NotADump {
+                path: path.to_path_buf(),
+            });
+        }
+        if got < fixed.len() {
+            return Err(bad(format!("file ends at byte {got}, inside the header")));
+        }
+        let u32_at =
+            |o: usize| u32::from_le_bytes([fixed[o], fixed[o + 1], fixed[o + 2], fixed[o + 3]]);
+        let version = u32_at(8);
+        if version != VERSION {
+            return Err(DumpError::Version {
+                path: path.to_path_buf(),
+                found: version,
+            });
+        }
+        let header_len = u32_at(12) as usize;
+        if !(48..=42 + 4 + 2 * 65535 + 4).contains(&header_len) {
+            return Err(bad(format!("header length {header_len} is impossible")));
+        }
+        let mut rest = vec![0u8; header_len - 42];
+        let got = read_exact_or_eof(&mut file, &mut rest).map_err(io)?;
+        if got < rest.len() {
+            return Err(bad(format!(
+                "file ends at byte {}, inside the {header_len}-byte header",
+                42 + got
+            )));
+        }
+        let mut all = fixed.to_vec();
+        all.extend_from_slice(&rest);
+        let stored = u32::from_le_bytes([
+            all[header_len - 4],
+            all[header_len - 3],
+            all[header_len - 2],
+            all[header_len - 1],
+        ]);
+        if crc32fast::hash(&all[..header_len - 4]) != stored {
+            return Err(bad("header checksum mismatch".into()));
+        }
+        let mut pos = 40;
+        let mut string = |what: &str| -> Result<String, DumpError> {
+            if pos + 2 > header_len - 4 {
+                return Err(bad(format!("{what} length runs past the header")));
+            }
+            let n = u16::from_le_bytes([all[pos], all[pos + 1]]) as usize;
+            let (a, b) = (pos + 2, pos + 2 + n);
+            if b > header_len - 4 {
+                return Err(bad(format!("{what} runs past the header")));
+            }
+            pos = b;
+            String::from_utf8(all[a..b].to_vec()).map_err(|_| bad(format!("{what} is not UTF-8")))
+        };
+        let device = string("device name")?;
+        let card = string("card name")?;
+        let header = DumpHeader {
+            fourcc: [fixed[16], fixed[17], fixed[18], fixed[19]],
+            width: u32_at(20),
+            height: u32_at(24),
+            bytes_per_line: u32_at(28),
+            interval_num: u32_at(32),
+            interval_den: u32_at(36),
+            device,
+            card,
+        };
+        if header.width == 0 || header.height == 0 {
+            return Err(bad(format!(
+                "image size {}x{} is empty",
+                header.width, header.height
+            )));
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            file,
+            header,
+            offset: header_len as u64,
+            index: 0,
+        })
+    }
+
+    pub fn header(&self) -> &DumpHeader {
+        &self.header
+    }
+
+    /// Byte offset of the next record.
+    pub fn offset(&self) -> u64 {
+        self.offset
+    }
+
+    /// The next record; `Ok(None)` at a clean end of file. A cut-off last record is
+    /// [`DumpError::Truncated`]; a record that fails its checks is
+    /// [`DumpError::Corrupt`]. Both say where; the records before them are whole.
+    pub fn next_record(&mut self) -> Result<Option<Record>, DumpError> {
+        let record = read_record(&mut self.file, &self.path, self.offset, self.index)?;
+        if let Some(r) = &record {
+            self.offset += 24 + r.payload.len() as u64 + 4;
+            self.index += 1;
+        }
+        Ok(record)
+    }
+
+    /// Byte offsets of every whole record, and how the scan ended (`None` for a clean
+    /// end, or the error that stopped it).
+    pub fn index(path: &Path) -> Result<(DumpHeader, Vec<u64>, Option<DumpError>), DumpError> {
+        let mut reader = Self::open(path)?;
+        let mut offsets = Vec::new();
+        loop {
+            let at = reader.offset;
+            match reader.next_record() {
+                Ok(Some(_)) => offsets.push(at),
+                Ok(None) => return Ok((reader.header, offsets, None)),
+                Err(e @ (DumpError::Truncated { .. } | DumpError::Corrupt { .. })) => {
+                    return Ok((reader.header, offsets, Some(e)))
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
+    /// Reads the record at `offset` (from [`DumpReader::index`]), numbered `index`
+    /// in errors.
+    pub fn read_at(path: &Path, offset: u64, index: usize) -> Result<Record, DumpError> {
+        let io = |source| DumpError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut file = File::open(path).map_err(io)?;
+        file.seek(SeekFrom::Start(offset)).map_err(io)?;
+        read_record(&mut std::io::BufReader::new(file), path, offset, index)?.ok_or(
+            DumpError::Truncated {
+                path: path.to_path_buf(),
+                offset,
+                index,
+            },
+        )
+    }
+}
+
+/// One record from `file` positioned at `offset`; `Ok(None)` at a clean end of file.
+fn read_record(
+    file: &mut impl Read,
+    path: &Path,
+    offset: u64,
+    index: usize,
+) -> Result<Option<Record>, DumpError> {
+    let mut head = [0u8; 24];
+    let io = |source| DumpError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let got = read_exact_or_eof(file, &mut head).map_err(io)?;
+    if got == 0 {
+        return Ok(None);
+    }
+    let truncated = || DumpError::Truncated {
+        path: path.to_path_buf(),
+        offset,
+        index,
+    };
+    if got < head.len() {
+        return Err(truncated());
+    }
+    let corrupt = |reason: String| DumpError::Corrupt {
+        path: path.to_path_buf(),
+        offset,
+        index,
+        reason,
+    };
+    if &head[..4] != RECORD_MAGIC {
+        return Err(corrupt("no FRAM marker".into()));
+    }
+    let u32_at = |o: usize| u32::from_le_bytes([head[o], head[o + 1], head[o + 2], head[o + 3]]);
+    let used = u32_at(20);
+    if used > MAX_PAYLOAD {
+        return Err(corrupt(format!("impossible payload length {used}")));
+    }
+    let mut body = vec![0u8; used as usize + 4];
+    let got = read_exact_or_eof(file, &mut body).map_err(io)?;
+    if got < body.len() {
+        return Err(truncated());
+    }
+    let crc_at = used as usize;
+    let stored = u32::from_le_bytes([
+        body[crc_at],
+        body[crc_at + 1],
+        body[crc_at + 2],
+        body[crc_at + 3],
+    ]);
+    let mut hasher = crc32fast::Hasher::new();
+    hasher.update(&head);
+    hasher.update(&body[..crc_at]);
+    if hasher.finalize() != stored {
+        return Err(corrupt("checksum mismatch".into()));
+    }
+    body.truncate(crc_at);
+    Ok(Some(Record {
+        sequence: u32_at(4),
+        timestamp_nanos: u64::from_le_bytes([
+            head[8], head[9], head[10], head[11], head[12], head[13], head[14], head[15],
+        ]),
+        flags: u32_at(16),
+        payload: body,
+    }))
+}
+
+/// Decodes a recorded buffer to RGB: MJPEG (with or without Huffman tables), YUYV
+/// (BT.601, limited range) or packed RGB.
+pub fn decode_rgb(header: &DumpHeader, payload: &[u8]) -> Result<RgbImage, String> {
+    let (w, h) = (header.width as usize, header.height as usize);
+    match &header.fourcc {
+        b"MJPG" | b"JPEG" => {
+            let img = image::load_from_memory_with_format(payload, image::ImageFormat::Jpeg)
+                .map_err(|e| e.to_string())?
+                .into_rgb8();
+            if img.width() as usize != w || img.height() as usize != h {
+                return Err(format!(
+                    "JPEG is {}x{}, the header says {w}x{h}",
+                    img.width(),
+                    img.height()
+                ));
+            }
+            Ok(img)
+        }
+        b"YUYV" => {
+            let stride = if header.bytes_per_line == 0 {
+                2 * w
+            } else {
+                header.bytes_per_line as usize
+            };
+            if stride < 2 * w || payload.len() < stride * (h - 1) + 2 * w {
+                return Err(format!(
+                    "{} bytes is too short for {w}x{h} YUYV with {stride} bytes per line",
+                    payload.len()
+                ));
+            }
+            let mut out = vec![0u8; w * h * 3];
+            for y in 0..h {
+                let row = &payload[y * stride..y * stride + 2 * w];
+                for x in 0..w {
+                    let luma = row[2 * x] as f32;
+                    let pair = 4 * (x / 2);
+                    let (u, v) = (row[pair + 1] as f32 - 128.0, row[pair + 3] as f32 - 128.0);
+                    let c = 1.164 * (luma - 16.0);
+                    let px = [c + 1.596 * v, c - 0.392 * u - 0.813 * v, c + 2.017 * u];
+                    let o = 3 * (y * w + x);
+                    for k in 0..3 {
+                        out[o + k] = px[k].round().clamp(0.0, 255.0) as u8;
+                    }
+                }
+            }
+            RgbImage::from_raw(w as u32, h as u32, out).ok_or_else(|| "size".to_string())
+        }
+        b"RGB3" => {
+            let stride = if header.bytes_per_line == 0 {
+                3 * w
+            } else {
+                header.bytes_per_line as usize
+            };
+            if stride < 3 * w || payload.len() < stride * (h - 1) + 3 * w {
+                return Err(format!(
+                    "{} bytes is too short for {w}x{h} RGB3",
+                    payload.len()
+                ));
+            }
+            let mut out = Vec::with_capacity(w * h * 3);
+            for y in 0..h {
+                out.extend_from_slice(&payload[y * stride..y * stride + 3 * w]);
+            }
+            RgbImage::from_raw(w as u32, h as u32, out).ok_or_else(|| "size".to_string())
+        }
+        other => Err(format!("unsupported pixel format {}", fourcc_str(*other))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn header() -> DumpHeader {
+        DumpHeader {
+            fourcc: *b"RGB3",
+            width: 4,
+            height: 2,
+            bytes_per_line: 12,
+            interval_num: 1,
+            interval_den: 30,
+            device: "/dev/video0".into(),
+            card: "Test camera".into(),
+        }
+    }
+
+    fn write(path: &Path, frames: u32) {
+        let mut w = DumpWriter::create(path, &header()).expect("create");
+        for i in 0..frames {
+            let payload: Vec<u8> = (0..24).map(|k| (k as u32 * 7 + i) as u8).collect();
+            w.write_frame(100 + i, 1_000_000 * i as u64, 1, &payload)
+                .expect("write");
+        }
+        w.finish().expect("finish");
+    }
+
+    #[test]
+    fn round_trip_keeps_header_and_every_record() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("a.dump");
+        write(&p, 3);
+        let mut r = DumpReader::open(&p).expect("open");
+        assert_eq!(r.header(), &header());
+        for i in 0..3u32 {
+            let rec = r.next_record().expect("ok").expect("record");
+            assert_eq!(rec.sequence, 100 + i);
+            assert_eq!(rec.timestamp_nanos, 1_000_000 * i as u64);
+            assert_eq!(rec.payload[1], (7 + i) as u8);
+            let img = decode_rgb(r.header(), &rec.payload).expect("decode");
+            assert_eq!(
+                img.get_pixel(1, 0).0,
+                [(21 + i) as u8, (28 + i) as u8, (35 + i) as u8]
+            );
+        }
+        assert!(r.next_record().expect("clean end").is_none());
+    }
+
+    #[test]
+    fn a_cut_off_dump_reads_to_its_last_whole_frame_and_says_where() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("a.dump");
+        write(&p, 3);
+        let bytes = std::fs::read(&p).expect("read");
+        std::fs::write(&p, &bytes[..bytes.len() - 10]).expect("cut");
+        let (_, offsets, end) = DumpReader::index(&p).expect("index");
+        assert_eq!(offsets.len(), 2);
+        let err = end.expect("stopped early");
+        assert!(
+            matches!(err, DumpError::Truncated { index: 2, .. }),
+            "{err}"
+        );
+        assert!(err.to_string().contains("after 2 whole frames"), "{err}");
+    }
+
+    #[test]
+    fn a_corrupted_record_is_detected_not_decoded() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("a.dump");
+        write(&p, 3);
+        let mut bytes = std::fs::read(&p).expect("read");
+        let header_len = header().to_bytes().len();
+        let second = header_len + 24 + 24 + 4;
+        bytes[second + 30] ^= 0x55; // a payload byte of record 1
+        std::fs::write(&p, &bytes).expect("write");
+        let (_, offsets, end) = DumpReader::index(&p).expect("index");
+        assert_eq!(offsets.len(), 1);
+        let err = end.expect("stopped");
+        assert!(
+            matches!(&err, DumpError::Corrupt { index: 1, offset, .. } if *offset == second as u64),
+            "{err}"
+        );
+        // Garbage instead of a header.
+        std::fs::write(
+            &p,
+            b"PK\x03\x04 not a dump at all....................................",
+        )
+        .expect("write");
+        assert!(matches!(
+            DumpReader::open(&p),
+            Err(DumpError::NotADump { .. })
+        ));
+        // A damaged header.
+        let mut head = header().to_bytes();
+        head[21] ^= 1;
+        std::fs::write(&p, &head).expect("write");
+        let err = DumpReader::open(&p).err().expect("bad header");
+        assert!(err.to_string().contains("checksum"), "{err}");
+    }
+
+    #[test]
+    fn yuyv_decodes_grey_and_colour() {
+        let h = DumpHeader {
+            fourcc: *b"YUYV",
+            width: 2,
+            height: 1,
+            bytes_per_line: 4,
+            ..header()
+        };
+        // Mid grey (Y=126, U=V=128) and, in the same pair, the same chroma.
+        let img = decode_rgb(&h, &[126, 128, 126, 128]).expect("decode");
+        assert_eq!(img.get_pixel(0, 0).0, [128, 128, 128]);
+        // Pure-ish red: Y=81, U=90, V=240 (BT.601 limited range).
+        let img = decode_rgb(&h, &[81, 90, 81, 240]).expect("decode");
+        let p = img.get_pixel(0, 0).0;
+        assert!(p[0] > 240 && p[1] < 15 && p[2] < 15, "{p:?}");
+        assert!(decode_rgb(&h, &[1, 2]).is_err());
+    }
+}
