@@ -459,13 +459,97 @@ fn read_record(
     }))
 }
 
+/// JPEG markers that stand alone, without a length.
+fn standalone_marker(m: u8) -> bool {
+    m == 0x01 || (0xD0..=0xD8).contains(&m)
+}
+
+/// Byte ranges `[start, end)` of the marker segments before the first scan, with
+/// their marker byte, and the offset of the SOS marker. `None` if the data is not a
+/// well-formed JPEG header.
+fn jpeg_segments(jpeg: &[u8]) -> Option<(Vec<(u8, usize, usize)>, usize)> {
+    if jpeg.get(..2)? != [0xFF, 0xD8] {
+        return None;
+    }
+    let mut segments = Vec::new();
+    let mut i = 2;
+    loop {
+        if *jpeg.get(i)? != 0xFF {
+            return None;
+        }
+        let mut j = i + 1;
+        while *jpeg.get(j)? == 0xFF {
+            j += 1;
+        }
+        let m = jpeg[j];
+        if m == 0xDA {
+            return Some((segments, i));
+        }
+        if standalone_marker(m) {
+            i = j + 1;
+            continue;
+        }
+        let len = u16::from_be_bytes([*jpeg.get(j + 1)?, *jpeg.get(j + 2)?]) as usize;
+        let end = j + 1 + len;
+        if len < 2 || end > jpeg.len() {
+            return None;
+        }
+        segments.push((m, i, end));
+        i = end;
+    }
+}
+
+/// The standard Huffman tables of ITU-T T.81 Annex K.3 as DHT segments, taken once
+/// from a JPEG that the `image` encoder writes (it always uses those tables).
+fn standard_dht() -> &'static [u8] {
+    static DHT: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+    DHT.get_or_init(|| {
+        let mut jpeg = Vec::new();
+        let tiny = RgbImage::from_pixel(8, 8, image::Rgb([128, 64, 32]));
+        if image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90)
+            .encode_image(&tiny)
+            .is_err()
+        {
+            return Vec::new();
+        }
+        let mut dht = Vec::new();
+        if let Some((segments, _)) = jpeg_segments(&jpeg) {
+            for (m, a, b) in segments {
+                if m == 0xC4 {
+                    dht.extend_from_slice(&jpeg[a..b]);
+                }
+            }
+        }
+        dht
+    })
+}
+
+/// Many USB webcams send MJPEG frames without Huffman tables (the "AVI1" motion-JPEG
+/// convention: the decoder is to assume the standard ones); decoders then fail with
+/// "no DC table". This returns the frame with the standard tables inserted before the
+/// scan when it has none, and the frame unchanged otherwise.
+pub fn with_huffman_tables(jpeg: &[u8]) -> std::borrow::Cow<'_, [u8]> {
+    match jpeg_segments(jpeg) {
+        Some((segments, sos)) if !segments.iter().any(|(m, _, _)| *m == 0xC4) => {
+            let dht = standard_dht();
+            let mut out = Vec::with_capacity(jpeg.len() + dht.len());
+            out.extend_from_slice(&jpeg[..sos]);
+            out.extend_from_slice(dht);
+            out.extend_from_slice(&jpeg[sos..]);
+            std::borrow::Cow::Owned(out)
+        }
+        _ => std::borrow::Cow::Borrowed(jpeg),
+    }
+}
+
 /// Decodes a recorded buffer to RGB: MJPEG (with or without Huffman tables), YUYV
 /// (BT.601, limited range) or packed RGB.
 pub fn decode_rgb(header: &DumpHeader, payload: &[u8]) -> Result<RgbImage, String> {
     let (w, h) = (header.width as usize, header.height as usize);
     match &header.fourcc {
         b"MJPG" | b"JPEG" => {
-            let img = image::load_from_memory_with_format(payload, image::ImageFormat::Jpeg)
+            let jpeg = with_huffman_tables(payload);
+            let img = image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg)
                 .map_err(|e| e.to_string())?
                 .into_rgb8();
             if img.width() as usize != w || img.height() as usize != h {
@@ -626,6 +710,45 @@ mod tests {
         std::fs::write(&p, &head).expect("write");
         let err = DumpReader::open(&p).err().expect("bad header");
         assert!(err.to_string().contains("checksum"), "{err}");
+    }
+
+    #[test]
+    fn mjpeg_without_huffman_tables_decodes_with_the_standard_ones() {
+        let img = RgbImage::from_fn(64, 48, |x, y| {
+            image::Rgb([(x * 4) as u8, (y * 5) as u8, ((x + y) * 2) as u8])
+        });
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 85)
+            .encode_image(&img)
+            .expect("encode");
+        // Strip every DHT segment, as table-less webcams send them.
+        let (segments, _) = jpeg_segments(&jpeg).expect("parses");
+        let mut stripped = jpeg.clone();
+        for (m, a, b) in segments.iter().rev() {
+            if *m == 0xC4 {
+                stripped.drain(*a..*b);
+            }
+        }
+        assert!(stripped.len() < jpeg.len());
+        assert!(
+            image::load_from_memory_with_format(&stripped, image::ImageFormat::Jpeg).is_err(),
+            "a frame without tables should not decode as it is"
+        );
+        let header = DumpHeader {
+            fourcc: *b"MJPG",
+            width: 64,
+            height: 48,
+            bytes_per_line: 0,
+            ..header()
+        };
+        let want = decode_rgb(&header, &jpeg).expect("original");
+        let got = decode_rgb(&header, &stripped).expect("tables inserted");
+        assert_eq!(got, want);
+        // A frame that has its tables is passed through untouched.
+        assert!(matches!(
+            with_huffman_tables(&jpeg),
+            std::borrow::Cow::Borrowed(_)
+        ));
     }
 
     #[test]
