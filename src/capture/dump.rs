@@ -464,10 +464,13 @@ fn standalone_marker(m: u8) -> bool {
     m == 0x01 || (0xD0..=0xD8).contains(&m)
 }
 
-/// Byte ranges `[start, end)` of the marker segments before the first scan, with
-/// their marker byte, and the offset of the SOS marker. `None` if the data is not a
-/// well-formed JPEG header.
-fn jpeg_segments(jpeg: &[u8]) -> Option<(Vec<(u8, usize, usize)>, usize)> {
+/// A marker segment before the first scan: its marker byte and its bytes
+/// `[start, end)`.
+type Segment = (u8, usize, usize);
+
+/// The marker segments before the first scan, and the offset of the SOS marker.
+/// `None` if the data is not a well-formed JPEG header.
+fn jpeg_segments(jpeg: &[u8]) -> Option<(Vec<Segment>, usize)> {
     if jpeg.get(..2)? != [0xFF, 0xD8] {
         return None;
     }
