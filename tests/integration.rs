@@ -369,3 +369,87 @@ fn a_simulated_dump_reconstructs_like_its_frames_and_a_cut_one_still_reads() {
         "{err}"
     );
 }
+
+#[test]
+fn known_distance_puts_the_cloud_in_metres() {
+    // Two reconstructed points far apart, their true positions from the fixture's depth
+    // map, and the distance between them given to reconstruct: the cloud then comes out
+    // at the truth's scale (compare's best scale is 1).
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let sim = fixtures().join("sim-bricks");
+    let camera = crossline::camera_file::load(&sim.join("camera.yml")).expect("camera");
+    let depth = crossline::pfm::read_pfm(&sim.join("depth.pfm")).expect("depth");
+    let first = tmp.path().join("first.ply");
+    run_ok(
+        crossline()
+            .args(["reconstruct", "--input"])
+            .arg(&sim)
+            .arg("--camera")
+            .arg(sim.join("camera.yml"))
+            .arg("--out")
+            .arg(&first),
+    );
+    let cloud = read_ply(&first).expect("cloud");
+    let pixel_of = |p: &[f32; 3]| {
+        let v = nalgebra::Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        camera.pixel_from_camera(&v).expect("in front")
+    };
+    let true_point = |px: [f64; 2]| {
+        let (u, v) = (px[0].round() as usize, px[1].round() as usize);
+        let z = depth.data[v * depth.width as usize + u] as f64;
+        camera.ray_from_pixel(u as f64, v as f64).expect("ray") * z
+    };
+    // The leftmost and rightmost points at least 10 px inside the image.
+    let by_u = |p: &&[f32; 3]| pixel_of(p)[0];
+    let inside = |p: &&[f32; 3]| {
+        let [u, v] = pixel_of(p);
+        u > 10.0 && v > 10.0 && u < camera.width as f64 - 10.0 && v < camera.height as f64 - 10.0
+    };
+    let left = cloud
+        .points
+        .iter()
+        .filter(inside)
+        .min_by(|a, b| by_u(a).total_cmp(&by_u(b)));
+    let right = cloud
+        .points
+        .iter()
+        .filter(inside)
+        .max_by(|a, b| by_u(a).total_cmp(&by_u(b)));
+    let (left, right) = (left.expect("points"), right.expect("points"));
+    let (pa, pb) = (pixel_of(left), pixel_of(right));
+    let (pa, pb) = (
+        [pa[0].round(), pa[1].round()],
+        [pb[0].round(), pb[1].round()],
+    );
+    let distance = (true_point(pa) - true_point(pb)).norm();
+    let scaled = tmp.path().join("scaled.ply");
+    let arg = format!(
+        "--known-distance={},{},{},{},{distance}",
+        pa[0], pa[1], pb[0], pb[1]
+    );
+    run_ok(
+        crossline()
+            .args(["reconstruct", "--input"])
+            .arg(&sim)
+            .arg("--camera")
+            .arg(sim.join("camera.yml"))
+            .arg(&arg)
+            .arg("--out")
+            .arg(&scaled),
+    );
+    let out = run_ok(
+        crossline()
+            .arg("compare")
+            .arg(&scaled)
+            .arg("--truth")
+            .arg(&sim)
+            .arg("--json"),
+    );
+    let scale = json_of(&out.stdout)["truth"]["scale"]
+        .as_f64()
+        .expect("scale");
+    assert!(
+        (scale - 1.0).abs() < 0.03,
+        "best scale after --known-distance: {scale}"
+    );
+}

@@ -51,13 +51,8 @@ pub struct Args {
     scale: Option<f64>,
     /// U1,V1,U2,V2,D: the image points (pixels) (U1,V1) and (U2,V2) lie on the scanned
     /// surface D units apart; the cloud is scaled to match.
-    #[arg(
-        long,
-        value_name = "U1,V1,U2,V2,D",
-        value_delimiter = ',',
-        num_args = 5
-    )]
-    known_distance: Option<Vec<f64>>,
+    #[arg(long, value_name = "U1,V1,U2,V2,D", allow_hyphen_values = true)]
+    known_distance: Option<String>,
     /// Estimate the focal length from the orthogonality of the crosses (e.g. under
     /// water behind a flat port, where it grows by about 1.33).
     #[arg(long)]
@@ -133,9 +128,19 @@ fn true_planes(dir: &Path, frames: usize) -> anyhow::Result<Vec<[Option<Vector3<
 fn scale_mode(args: &Args) -> anyhow::Result<ScaleMode> {
     Ok(match (&args.scale, &args.known_distance) {
         (Some(factor), _) => ScaleMode::Factor { factor: *factor },
-        (None, Some(v)) => {
+        (None, Some(text)) => {
+            let v: Vec<f64> = text
+                .split(',')
+                .map(|x| x.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .with_context(|| {
+                    format!("--known-distance {text}: expected five numbers U1,V1,U2,V2,D")
+                })?;
             let [u1, v1, u2, v2, d] = v[..] else {
-                bail!("--known-distance takes five numbers U1,V1,U2,V2,D");
+                bail!(
+                    "--known-distance {text}: expected five numbers U1,V1,U2,V2,D, found {}",
+                    v.len()
+                );
             };
             ScaleMode::KnownDistance {
                 a_px: [u1, v1],
