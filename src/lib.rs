@@ -18,7 +18,8 @@
 //! - [`extract`]: background model, Steger ridge detector, colour classes, linking.
 //! - [`intersect`]: spatial index over curve segments, crossing points.
 //! - [`solve`]: coplanarity system, gauge, orthogonality, robust re-solve, extension.
-//! - [`cloud`]: triangulation, rejection, colour.
+//! - [`cloud`]: triangulation, rejection, colour, scale.
+//! - [`reconstruct`]: the offline pipeline wiring the stages; [`config`]: its settings.
 //! - [`ply`]: PLY point cloud reading and writing.
 //! - [`compare`]: cloud-to-reference and cloud-to-truth accuracy evaluation.
 //! - [`pfm`]: Portable Float Map I/O for depth maps.
