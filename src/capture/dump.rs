@@ -545,6 +545,24 @@ pub fn with_huffman_tables(jpeg: &[u8]) -> std::borrow::Cow<'_, [u8]> {
     }
 }
 
+/// Bytes per line of a packed format of `bytes_per_pixel` (the header's, or the packed
+/// width when it says 0), checked against the payload's length.
+fn packed_stride(header: &DumpHeader, bytes_per_pixel: usize, len: usize) -> Result<usize, String> {
+    let (w, h) = (header.width as usize, header.height as usize);
+    let row = bytes_per_pixel * w;
+    let stride = match header.bytes_per_line {
+        0 => row,
+        n => n as usize,
+    };
+    if stride < row || len < stride * (h - 1) + row {
+        return Err(format!(
+            "{len} bytes is too short for {w}x{h} {} with {stride} bytes per line",
+            fourcc_str(header.fourcc)
+        ));
+    }
+    Ok(stride)
+}
+
 /// Decodes a recorded buffer to RGB: MJPEG (with or without Huffman tables), YUYV
 /// (BT.601, limited range) or packed RGB.
 pub fn decode_rgb(header: &DumpHeader, payload: &[u8]) -> Result<RgbImage, String> {
@@ -565,17 +583,7 @@ pub fn decode_rgb(header: &DumpHeader, payload: &[u8]) -> Result<RgbImage, Strin
             Ok(img)
         }
         b"YUYV" => {
-            let stride = if header.bytes_per_line == 0 {
-                2 * w
-            } else {
-                header.bytes_per_line as usize
-            };
-            if stride < 2 * w || payload.len() < stride * (h - 1) + 2 * w {
-                return Err(format!(
-                    "{} bytes is too short for {w}x{h} YUYV with {stride} bytes per line",
-                    payload.len()
-                ));
-            }
+            let stride = packed_stride(header, 2, payload.len())?;
             let mut out = vec![0u8; w * h * 3];
             for y in 0..h {
                 let row = &payload[y * stride..y * stride + 2 * w];
@@ -594,17 +602,7 @@ pub fn decode_rgb(header: &DumpHeader, payload: &[u8]) -> Result<RgbImage, Strin
             RgbImage::from_raw(w as u32, h as u32, out).ok_or_else(|| "size".to_string())
         }
         b"RGB3" => {
-            let stride = if header.bytes_per_line == 0 {
-                3 * w
-            } else {
-                header.bytes_per_line as usize
-            };
-            if stride < 3 * w || payload.len() < stride * (h - 1) + 3 * w {
-                return Err(format!(
-                    "{} bytes is too short for {w}x{h} RGB3",
-                    payload.len()
-                ));
-            }
+            let stride = packed_stride(header, 3, payload.len())?;
             let mut out = Vec::with_capacity(w * h * 3);
             for y in 0..h {
                 out.extend_from_slice(&payload[y * stride..y * stride + 3 * w]);

@@ -316,14 +316,19 @@ pub enum FrameFormat {
 
 /// Encodes an image as JPEG and writes it.
 pub fn write_jpeg(path: &Path, img: &RgbImage, quality: u8) -> Result<(), SimError> {
+    let buf = encode_jpeg(img, quality).map_err(|source| SimError::Image {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    std::fs::write(path, &buf).map_err(io_err(path))
+}
+
+/// JPEG bytes of `img` at `quality` (clamped to 1-100).
+pub(crate) fn encode_jpeg(img: &RgbImage, quality: u8) -> Result<Vec<u8>, image::ImageError> {
     let mut buf = Vec::with_capacity(img.as_raw().len() / 8);
     image::codecs::jpeg::JpegEncoder::new_with_quality(&mut buf, quality.clamp(1, 100))
-        .encode_image(img)
-        .map_err(|source| SimError::Image {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    std::fs::write(path, &buf).map_err(io_err(path))
+        .encode_image(img)?;
+    Ok(buf)
 }
 
 /// Renders frames in parallel, in ordered batches, and appends them to one dump as
@@ -362,13 +367,7 @@ fn write_dump(
                 let mut img = RgbImage::new(cam.width, cam.height);
                 let mut frame_lit = vec![0u8; n];
                 sim.render_frame_into(i, &mut img, Some(&mut frame_lit));
-                let mut jpeg = Vec::new();
-                image::codecs::jpeg::JpegEncoder::new_with_quality(
-                    &mut jpeg,
-                    quality.clamp(1, 100),
-                )
-                .encode_image(&img)
-                .map_err(|source| SimError::Image {
+                let jpeg = encode_jpeg(&img, quality).map_err(|source| SimError::Image {
                     path: path.to_path_buf(),
                     source,
                 })?;

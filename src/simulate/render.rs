@@ -648,19 +648,9 @@ impl Simulator {
 }
 
 fn jpeg_round_trip(img: &mut RgbImage, quality: u8) {
-    let mut buf = Vec::new();
-    let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut buf, quality.clamp(1, 100));
-    if image::ImageEncoder::write_image(
-        enc,
-        img.as_raw(),
-        img.width(),
-        img.height(),
-        image::ExtendedColorType::Rgb8,
-    )
-    .is_err()
-    {
+    let Ok(buf) = super::encode_jpeg(img, quality) else {
         return;
-    }
+    };
     if let Ok(decoded) = image::load_from_memory_with_format(&buf, image::ImageFormat::Jpeg) {
         *img = decoded.to_rgb8();
     }
