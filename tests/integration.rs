@@ -6,7 +6,7 @@ use std::path::Path;
 
 use crossline::ply::{read_ply, write_ply, Cloud};
 use serde_json::Value;
-use util::{crossline, fixtures, run_ok, stderr_of_failure};
+use util::{crossline, fixtures, reconstruct, run_ok, stderr_of_failure};
 
 fn json_of(stdout: &[u8]) -> Value {
     serde_json::from_slice(stdout).expect("valid JSON on stdout")
@@ -93,13 +93,7 @@ fn reconstruct_then_compare_on_the_fixture() {
     let cloud = tmp.path().join("cloud.ply");
     let report = tmp.path().join("report.json");
     run_ok(
-        crossline()
-            .args(["reconstruct", "--input"])
-            .arg(&sim)
-            .arg("--camera")
-            .arg(sim.join("camera.yml"))
-            .arg("--out")
-            .arg(&cloud)
+        reconstruct(&sim, &sim.join("camera.yml"), &cloud)
             .arg("--report")
             .arg(&report),
     );
@@ -229,16 +223,7 @@ fn bad_inputs_are_named_in_the_error() {
     let sim = fixtures().join("sim-bricks");
     // A missing camera file.
     let out = tmp.path().join("x.ply");
-    let reconstruct = |input: &Path, camera: &Path| {
-        let mut cmd = crossline();
-        cmd.args(["reconstruct", "--input"])
-            .arg(input)
-            .arg("--camera")
-            .arg(camera)
-            .arg("--out")
-            .arg(&out);
-        cmd
-    };
+    let reconstruct = |input: &Path, camera: &Path| reconstruct(input, camera, &out);
     let err = stderr_of_failure(&mut reconstruct(&sim, Path::new("no-such-camera.yml")));
     assert!(err.contains("no-such-camera.yml"), "{err}");
     // A camera file with a broken matrix: file and key.
@@ -304,20 +289,16 @@ fn a_simulated_dump_reconstructs_like_its_frames_and_a_cut_one_still_reads() {
                 .arg(out),
         );
     }
-    let reconstruct = |input: &Path, out: &Path| {
-        crossline()
-            .args(["reconstruct", "--scale", "1", "--input"])
-            .arg(input)
-            .arg("--camera")
-            .arg(files.join("camera.yml"))
-            .arg("--out")
-            .arg(out)
+    let camera = files.join("camera.yml");
+    let run = |input: &Path, out: &Path| {
+        reconstruct(input, &camera, out)
+            .args(["--scale", "1"])
             .output()
             .expect("spawn")
     };
     let (a, b) = (tmp.path().join("a.ply"), tmp.path().join("b.ply"));
-    let ra = reconstruct(&files, &a);
-    let rb = reconstruct(&dump.join("frames.dump"), &b);
+    let ra = run(&files, &a);
+    let rb = run(&dump.join("frames.dump"), &b);
     // The same JPEG frames through either container: the same cloud.
     assert!(
         ra.status.success(),
@@ -337,13 +318,7 @@ fn a_simulated_dump_reconstructs_like_its_frames_and_a_cut_one_still_reads() {
     let bytes = std::fs::read(dump.join("frames.dump")).expect("dump");
     let cut = tmp.path().join("cut.dump");
     std::fs::write(&cut, &bytes[..bytes.len() - 1000]).expect("write");
-    let out = crossline()
-        .args(["reconstruct", "--input"])
-        .arg(&cut)
-        .arg("--camera")
-        .arg(files.join("camera.yml"))
-        .arg("--out")
-        .arg(tmp.path().join("c.ply"))
+    let out = reconstruct(&cut, &camera, &tmp.path().join("c.ply"))
         .output()
         .expect("spawn");
     let err = String::from_utf8_lossy(&out.stderr);
@@ -355,15 +330,7 @@ fn a_simulated_dump_reconstructs_like_its_frames_and_a_cut_one_still_reads() {
     // Not a dump at all.
     let junk = tmp.path().join("junk.dump");
     std::fs::write(&junk, b"hello").expect("write");
-    let err = stderr_of_failure(
-        crossline()
-            .args(["reconstruct", "--input"])
-            .arg(&junk)
-            .arg("--camera")
-            .arg(files.join("camera.yml"))
-            .arg("--out")
-            .arg(tmp.path().join("d.ply")),
-    );
+    let err = stderr_of_failure(&mut reconstruct(&junk, &camera, &tmp.path().join("d.ply")));
     assert!(
         err.contains("junk.dump") && err.contains("not a crossline dump"),
         "{err}"
@@ -380,15 +347,7 @@ fn known_distance_puts_the_cloud_in_metres() {
     let camera = crossline::camera_file::load(&sim.join("camera.yml")).expect("camera");
     let depth = crossline::pfm::read_pfm(&sim.join("depth.pfm")).expect("depth");
     let first = tmp.path().join("first.ply");
-    run_ok(
-        crossline()
-            .args(["reconstruct", "--input"])
-            .arg(&sim)
-            .arg("--camera")
-            .arg(sim.join("camera.yml"))
-            .arg("--out")
-            .arg(&first),
-    );
+    run_ok(&mut reconstruct(&sim, &sim.join("camera.yml"), &first));
     let cloud = read_ply(&first).expect("cloud");
     let pixel_of = |p: &[f32; 3]| {
         let v = nalgebra::Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
@@ -427,16 +386,7 @@ fn known_distance_puts_the_cloud_in_metres() {
         "--known-distance={},{},{},{},{distance}",
         pa[0], pa[1], pb[0], pb[1]
     );
-    run_ok(
-        crossline()
-            .args(["reconstruct", "--input"])
-            .arg(&sim)
-            .arg("--camera")
-            .arg(sim.join("camera.yml"))
-            .arg(&arg)
-            .arg("--out")
-            .arg(&scaled),
-    );
+    run_ok(reconstruct(&sim, &sim.join("camera.yml"), &scaled).arg(&arg));
     let out = run_ok(
         crossline()
             .arg("compare")

@@ -41,3 +41,20 @@ pub fn stderr_of_failure(cmd: &mut Command) -> String {
     assert!(!err.contains("panicked"), "{cmd:?} panicked:\n{err}");
     err
 }
+
+/// `crossline reconstruct --input INPUT --camera CAMERA --out OUT`; add more arguments
+/// to the returned command.
+pub fn reconstruct(
+    input: &std::path::Path,
+    camera: &std::path::Path,
+    out: &std::path::Path,
+) -> Command {
+    let mut cmd = crossline();
+    cmd.args(["reconstruct", "--input"])
+        .arg(input)
+        .arg("--camera")
+        .arg(camera)
+        .arg("--out")
+        .arg(out);
+    cmd
+}
