@@ -13,6 +13,7 @@ use crate::cloud::TriangulateParams;
 use crate::extract::ExtractParams;
 use crate::intersect::IntersectParams;
 use crate::reconstruct::BackgroundParams;
+use crate::serve::ServeConfig;
 use crate::solve::SolveParams;
 
 /// The whole configuration file.
@@ -24,6 +25,7 @@ pub struct Config {
     pub intersect: IntersectParams,
     pub solve: SolveParams,
     pub triangulate: TriangulateParams,
+    pub serve: ServeConfig,
 }
 
 #[derive(Debug, thiserror::Error)]

@@ -13,7 +13,9 @@
 //! The modules follow the data:
 //! - [`camera`]: intrinsics, OpenCV distortion, point undistortion.
 //! - [`camera_file`]: OpenCV `FileStorage` YAML, ROS `camera_info` and TOML readers/writers.
-//! - [`capture`]: the dump format of recorded camera buffers.
+//! - [`capture`]: frame sources (V4L2 cameras, replays) and the dump format of recorded
+//!   camera buffers.
+//! - [`ring`]: preallocated frame slots between the capture thread and the workers.
 //! - [`simulate`]: analytic scenes, the hand-held projector, image formation, ground truth.
 //! - [`extract`]: background model, Steger ridge detector, colour classes, linking.
 //! - [`intersect`]: spatial index over curve segments, crossing points.
@@ -21,6 +23,8 @@
 //! - [`cloud`]: triangulation, rejection, colour, scale.
 //! - [`reconstruct`]: the offline pipeline wiring the stages; [`config`]: its settings.
 //! - [`ply`]: PLY point cloud reading and writing.
+//! - [`serve`]: the live daemon: threads, incremental solver, checkpoints, sockets,
+//!   the cloud stream protocol and status lines.
 //! - [`compare`]: cloud-to-reference and cloud-to-truth accuracy evaluation.
 //! - [`pfm`]: Portable Float Map I/O for depth maps.
 
@@ -35,5 +39,7 @@ pub mod intersect;
 pub mod pfm;
 pub mod ply;
 pub mod reconstruct;
+pub mod ring;
+pub mod serve;
 pub mod simulate;
 pub mod solve;

@@ -265,10 +265,10 @@ pub struct Reconstruction {
 }
 
 /// One laser of one frame: a plane unknown and the curves that lie on it.
-struct PlaneCurves {
-    frame: u32,
-    laser: u8,
-    curves: Vec<Curve>,
+pub(crate) struct PlaneCurves {
+    pub(crate) frame: u32,
+    pub(crate) laser: u8,
+    pub(crate) curves: Vec<Curve>,
 }
 
 impl PlaneCurves {
@@ -276,7 +276,7 @@ impl PlaneCurves {
     /// closest to `u`: the polyline's segment is found first (polylines are short),
     /// then only the dense points between its two vertices, widened by `radius`, are
     /// searched.
-    fn dense_near(&self, u: [f64; 2], radius: f64) -> &[[f64; 2]] {
+    pub(crate) fn dense_near(&self, u: [f64; 2], radius: f64) -> &[[f64; 2]] {
         let mut best: Option<(f64, &Curve, usize)> = None;
         for curve in &self.curves {
             for (k, seg) in curve.polyline.windows(2).enumerate() {

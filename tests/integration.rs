@@ -93,7 +93,7 @@ fn reconstruct_then_compare_on_the_fixture() {
     let cloud = tmp.path().join("cloud.ply");
     let report = tmp.path().join("report.json");
     run_ok(
-        reconstruct(&sim, &sim.join("camera.yml"), &cloud)
+        reconstruct(&sim.join("frames.dump"), &sim.join("camera.yml"), &cloud)
             .arg("--report")
             .arg(&report),
     );
@@ -224,13 +224,16 @@ fn bad_inputs_are_named_in_the_error() {
     // A missing camera file.
     let out = tmp.path().join("x.ply");
     let reconstruct = |input: &Path, camera: &Path| reconstruct(input, camera, &out);
-    let err = stderr_of_failure(&mut reconstruct(&sim, Path::new("no-such-camera.yml")));
+    let err = stderr_of_failure(&mut reconstruct(
+        &sim.join("frames.dump"),
+        Path::new("no-such-camera.yml"),
+    ));
     assert!(err.contains("no-such-camera.yml"), "{err}");
     // A camera file with a broken matrix: file and key.
     let bad = tmp.path().join("bad.yml");
     let text = std::fs::read_to_string(sim.join("camera.yml")).expect("camera");
     std::fs::write(&bad, text.replace("cols: 3", "cols: 4")).expect("write");
-    let err = stderr_of_failure(&mut reconstruct(&sim, &bad));
+    let err = stderr_of_failure(&mut reconstruct(&sim.join("frames.dump"), &bad));
     assert!(
         err.contains("bad.yml") && err.contains("camera_matrix"),
         "{err}"
@@ -239,7 +242,7 @@ fn bad_inputs_are_named_in_the_error() {
     let cfg = tmp.path().join("c.toml");
     std::fs::write(&cfg, "[solve]\nmax_global_plane = 3\n").expect("write");
     let err = stderr_of_failure(
-        reconstruct(&sim, &sim.join("camera.yml"))
+        reconstruct(&sim.join("frames.dump"), &sim.join("camera.yml"))
             .arg("--config")
             .arg(&cfg),
     );
@@ -347,7 +350,11 @@ fn known_distance_puts_the_cloud_in_metres() {
     let camera = crossline::camera_file::load(&sim.join("camera.yml")).expect("camera");
     let depth = crossline::pfm::read_pfm(&sim.join("depth.pfm")).expect("depth");
     let first = tmp.path().join("first.ply");
-    run_ok(&mut reconstruct(&sim, &sim.join("camera.yml"), &first));
+    run_ok(&mut reconstruct(
+        &sim.join("frames.dump"),
+        &sim.join("camera.yml"),
+        &first,
+    ));
     let cloud = read_ply(&first).expect("cloud");
     let pixel_of = |p: &[f32; 3]| {
         let v = nalgebra::Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
@@ -386,7 +393,7 @@ fn known_distance_puts_the_cloud_in_metres() {
         "--known-distance={},{},{},{},{distance}",
         pa[0], pa[1], pb[0], pb[1]
     );
-    run_ok(reconstruct(&sim, &sim.join("camera.yml"), &scaled).arg(&arg));
+    run_ok(reconstruct(&sim.join("frames.dump"), &sim.join("camera.yml"), &scaled).arg(&arg));
     let out = run_ok(
         crossline()
             .arg("compare")

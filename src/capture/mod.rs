@@ -1,4 +1,65 @@
-//! Frames from cameras and recordings. [`dump`] is the recording format of raw camera
-//! buffers; the V4L2 capture and the live ring arrive with the daemon.
+//! Frames from cameras and recordings.
+//!
+//! - [`dump`]: the recording format of raw camera buffers (versioned, documented there).
+//! - [`replay`]: a recorded dump played back as if it were a camera.
+//!
+//! Every source implements [`FrameSource`], so the daemon runs the identical pipeline
+//! on a live camera and on a replay.
 
 pub mod dump;
+pub mod replay;
+
+use std::time::Duration;
+
+use dump::{DumpError, DumpHeader};
+
+/// One buffer from a source, borrowed until the next call.
+#[derive(Clone, Copy, Debug)]
+pub struct Frame<'a> {
+    /// The driver's sequence number.
+    pub sequence: u32,
+    /// The driver's timestamp, nanoseconds.
+    pub timestamp_nanos: u64,
+    /// V4L2 buffer flags.
+    pub flags: u32,
+    /// Position in the source (record index of a dump; the running count of a camera).
+    pub position: u64,
+    pub bytes: &'a [u8],
+}
+
+/// What a source had to say.
+#[derive(Debug)]
+pub enum Next<'a> {
+    Frame(Frame<'a>),
+    /// Nothing within the timeout (or still waiting for the device to come back).
+    Idle,
+    /// The device went away; the source keeps trying to reopen it.
+    Lost(String),
+    /// The device is streaming again after a loss; the format is unchanged.
+    Resumed,
+    /// No more frames will come (end of a replay).
+    End,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum CaptureError {
+    #[error(transparent)]
+    Dump(#[from] DumpError),
+    #[error("{0}")]
+    Device(String),
+    #[error("the device came back with another format ({now}) than the scan's ({was})")]
+    FormatChanged { was: String, now: String },
+}
+
+/// A camera or a recording.
+pub trait FrameSource: Send {
+    /// The negotiated stream, as it goes into a dump header.
+    fn header(&self) -> &DumpHeader;
+    /// True when frames must never be dropped (replay as fast as possible): the
+    /// capture thread then waits for a free ring slot instead of dropping.
+    fn lossless(&self) -> bool;
+    /// The next frame, waiting at most `timeout`.
+    fn next(&mut self, timeout: Duration) -> Result<Next<'_>, CaptureError>;
+    /// Skips to the first frame at `position` or after it (resuming a scan).
+    fn seek(&mut self, position: u64) -> Result<(), CaptureError>;
+}

@@ -174,6 +174,10 @@ pub struct Solution {
     /// Smallest and second smallest eigenvalue of the gauge-fixed normal matrix,
     /// relative to its mean eigenvalue: a clear gap means a well-determined subset.
     pub null_space_eigenvalues: [f64; 2],
+    /// What fitting one more plane against these needs (noise levels, thresholds), in
+    /// the given coordinates: planes there are `(v.x/λ, v.y/λ, v.z)` of [`Self::planes`].
+    /// `None` for a solution not made by [`solve`].
+    pub fit_context: Option<FitContext>,
 }
 
 impl Solution {
@@ -191,6 +195,7 @@ impl Solution {
             sigma_img: 0.0,
             orthogonality_rms_deg: 0.0,
             null_space_eigenvalues: [0.0; 2],
+            fit_context: None,
         }
     }
 }
@@ -662,6 +667,7 @@ pub fn solve(problem: &Problem, params: &SolveParams) -> Result<Solution, SolveE
             global.null_space.lambda_min,
             global.null_space.lambda_second,
         ],
+        fit_context: Some(ctx),
     })
 }
 

@@ -8,9 +8,13 @@ use clap::{Parser, Subcommand};
 
 mod compare;
 mod demo;
+mod device;
 mod extract;
 mod reconstruct;
+mod serve;
 mod simulate;
+mod status;
+mod tail;
 
 /// Turn a fixed camera and a hand-held cross line laser into a 3D scanner, with no
 /// calibration of the laser.
@@ -38,6 +42,9 @@ enum Command {
     Compare(compare::Args),
     Extract(extract::Args),
     Reconstruct(reconstruct::Args),
+    Serve(serve::Args),
+    Status(status::Args),
+    Tail(tail::Args),
 }
 
 fn main() -> ExitCode {
@@ -49,6 +56,9 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare::run(args),
         Command::Extract(args) => extract::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),
+        Command::Serve(args) => serve::run(args),
+        Command::Status(args) => status::run(args),
+        Command::Tail(args) => tail::run(args),
     };
     match result {
         Ok(code) => code,

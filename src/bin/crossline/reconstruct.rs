@@ -74,7 +74,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if args.estimate_focal {
         config.solve.estimate_focal = true;
     }
-    let scale = scale_mode(&args)?;
+    let scale = scale_mode(args.scale, args.known_distance.as_deref())?;
     let (frames, stopped) = reconstruct::FrameSource::open(&args.input)?;
     if let Some(why) = stopped {
         tracing::warn!("using the {} whole frames before: {why}", frames.len());
@@ -125,9 +125,9 @@ fn true_planes(dir: &Path, frames: usize) -> anyhow::Result<Vec<[Option<Vector3<
         .collect())
 }
 
-fn scale_mode(args: &Args) -> anyhow::Result<ScaleMode> {
-    Ok(match (&args.scale, &args.known_distance) {
-        (Some(factor), _) => ScaleMode::Factor { factor: *factor },
+pub fn scale_mode(scale: Option<f64>, known_distance: Option<&str>) -> anyhow::Result<ScaleMode> {
+    Ok(match (scale, known_distance) {
+        (Some(factor), _) => ScaleMode::Factor { factor },
         (None, Some(text)) => {
             let v: Vec<f64> = text
                 .split(',')

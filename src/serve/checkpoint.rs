@@ -1,0 +1,467 @@
+//! Checkpoints of a live scan, so a crash or `kill -9` loses at most the last few
+//! seconds of processing.
+//!
+//! The expensive, irreplaceable part of the state is what extraction found in every
+//! frame; crossings, planes and the cloud follow from it in about a second by
+//! re-solving. A scan's state directory holds:
+//!
+//! - `background.png`: the background the curves were measured against (lossless), so
+//!   frames processed after a resume are measured identically;
+//! - `curves.log`: every frame's curves, appended in frame order and flushed to disk
+//!   every `checkpoint_interval_s` (and at shutdown).
+//!
+//! # `curves.log`, version 1 (little-endian)
+//! Header: magic `CRSLCURV` (8), version u32 (= 1), width u32, height u32.
+//! Then one record per frame:
+//!
+//! | size | field |
+//! |---|---|
+//! | 4 | magic `FRCV` |
+//! | 8 | frame index (consecutive from 0) |
+//! | 8 | source position (dump record index, or camera frame count) |
+//! | 4 | driver sequence |
+//! | 8 | driver timestamp, ns |
+//! | 4 | number of curves `n` |
+//! | … | `n` curves: laser u8, point count `m` u32, `m` × (x_px f32, y_px f32, x f64, y f64, strength f32), polyline count `p` u32, `p` × (x f64, y f64) |
+//! | 4 | CRC-32 of the record from its magic on |
+//!
+//! A record cut off by a crash, or failing its CRC, ends the log: everything before
+//! it is used, the rest is cut away on resume, and its frames are processed again.
+
+use std::fs::{File, OpenOptions};
+use std::io::{BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use image::RgbImage;
+
+use crate::extract::Curve;
+
+pub const MAGIC: &[u8; 8] = b"CRSLCURV";
+pub const RECORD_MAGIC: &[u8; 4] = b"FRCV";
+pub const VERSION: u32 = 1;
+const HEADER_BYTES: u64 = 20;
+
+#[derive(Debug, thiserror::Error)]
+pub enum CheckpointError {
+    #[error("checkpoint {path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("checkpoint {path}: {message}")]
+    Format { path: PathBuf, message: String },
+    #[error("checkpoint {path} is for {got_w}x{got_h} frames, this scan's are {want_w}x{want_h}")]
+    Size {
+        path: PathBuf,
+        got_w: u32,
+        got_h: u32,
+        want_w: u32,
+        want_h: u32,
+    },
+}
+
+/// One frame as checkpointed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameCurves {
+    pub index: u64,
+    pub source_position: u64,
+    pub sequence: u32,
+    pub timestamp_nanos: u64,
+    pub curves: Vec<Curve>,
+}
+
+/// What a state directory held.
+pub struct Resumed {
+    pub background: Option<RgbImage>,
+    pub frames: Vec<FrameCurves>,
+    /// Why the log stopped early, if it did (a cut-off last record after a crash).
+    pub stopped: Option<String>,
+}
+
+fn encode(f: &FrameCurves, out: &mut Vec<u8>) {
+    out.clear();
+    out.extend_from_slice(RECORD_MAGIC);
+    out.extend_from_slice(&f.index.to_le_bytes());
+    out.extend_from_slice(&f.source_position.to_le_bytes());
+    out.extend_from_slice(&f.sequence.to_le_bytes());
+    out.extend_from_slice(&f.timestamp_nanos.to_le_bytes());
+    out.extend_from_slice(&(f.curves.len() as u32).to_le_bytes());
+    for c in &f.curves {
+        out.push(c.laser);
+        out.extend_from_slice(&(c.points.len() as u32).to_le_bytes());
+        for i in 0..c.points.len() {
+            let px = c.points_px.get(i).copied().unwrap_or([f32::NAN; 2]);
+            out.extend_from_slice(&px[0].to_le_bytes());
+            out.extend_from_slice(&px[1].to_le_bytes());
+            out.extend_from_slice(&c.points[i][0].to_le_bytes());
+            out.extend_from_slice(&c.points[i][1].to_le_bytes());
+            out.extend_from_slice(&c.strength.get(i).copied().unwrap_or(0.0).to_le_bytes());
+        }
+        out.extend_from_slice(&(c.polyline.len() as u32).to_le_bytes());
+        for p in &c.polyline {
+            out.extend_from_slice(&p[0].to_le_bytes());
+            out.extend_from_slice(&p[1].to_le_bytes());
+        }
+    }
+    let crc = crc32fast::hash(out);
+    out.extend_from_slice(&crc.to_le_bytes());
+}
+
+struct Cursor<'a> {
+    b: &'a [u8],
+    at: usize,
+}
+
+impl Cursor<'_> {
+    fn take(&mut self, n: usize) -> Option<&[u8]> {
+        let s = self.b.get(self.at..self.at + n)?;
+        self.at += n;
+        Some(s)
+    }
+    fn u8(&mut self) -> Option<u8> {
+        self.take(1).map(|s| s[0])
+    }
+    fn u32(&mut self) -> Option<u32> {
+        self.take(4)
+            .and_then(|s| s.try_into().ok())
+            .map(u32::from_le_bytes)
+    }
+    fn u64(&mut self) -> Option<u64> {
+        self.take(8)
+            .and_then(|s| s.try_into().ok())
+            .map(u64::from_le_bytes)
+    }
+    fn f32(&mut self) -> Option<f32> {
+        self.take(4)
+            .and_then(|s| s.try_into().ok())
+            .map(f32::from_le_bytes)
+    }
+    fn f64(&mut self) -> Option<f64> {
+        self.take(8)
+            .and_then(|s| s.try_into().ok())
+            .map(f64::from_le_bytes)
+    }
+}
+
+/// Decodes the record at the start of `b`: the frame and the record's length.
+fn decode(b: &[u8]) -> Result<(FrameCurves, usize), String> {
+    let mut c = Cursor { b, at: 0 };
+    let short = || "cut off".to_string();
+    if c.take(4).ok_or_else(short)? != RECORD_MAGIC {
+        return Err("bad record magic".into());
+    }
+    let index = c.u64().ok_or_else(short)?;
+    let source_position = c.u64().ok_or_else(short)?;
+    let sequence = c.u32().ok_or_else(short)?;
+    let timestamp_nanos = c.u64().ok_or_else(short)?;
+    let n = c.u32().ok_or_else(short)? as usize;
+    let mut curves = Vec::with_capacity(n.min(64));
+    for _ in 0..n {
+        let laser = c.u8().ok_or_else(short)?;
+        let m = c.u32().ok_or_else(short)? as usize;
+        if m > b.len() {
+            return Err("point count beyond the record".into());
+        }
+        let mut curve = Curve {
+            laser,
+            points_px: Vec::with_capacity(m),
+            points: Vec::with_capacity(m),
+            strength: Vec::with_capacity(m),
+            polyline: Vec::new(),
+        };
+        for _ in 0..m {
+            let px = [c.f32().ok_or_else(short)?, c.f32().ok_or_else(short)?];
+            let p = [c.f64().ok_or_else(short)?, c.f64().ok_or_else(short)?];
+            curve.points_px.push(px);
+            curve.points.push(p);
+            curve.strength.push(c.f32().ok_or_else(short)?);
+        }
+        let p = c.u32().ok_or_else(short)? as usize;
+        if p > b.len() {
+            return Err("polyline length beyond the record".into());
+        }
+        for _ in 0..p {
+            curve
+                .polyline
+                .push([c.f64().ok_or_else(short)?, c.f64().ok_or_else(short)?]);
+        }
+        curves.push(curve);
+    }
+    let body_end = c.at;
+    let crc = c.u32().ok_or_else(short)?;
+    if crc32fast::hash(&b[..body_end]) != crc {
+        return Err("CRC mismatch".into());
+    }
+    Ok((
+        FrameCurves {
+            index,
+            source_position,
+            sequence,
+            timestamp_nanos,
+            curves,
+        },
+        c.at,
+    ))
+}
+
+/// Appends frames to a state directory's `curves.log`.
+pub struct CheckpointWriter {
+    path: PathBuf,
+    file: BufWriter<File>,
+    record: Vec<u8>,
+    interval: Duration,
+    last_sync: Instant,
+    pub frames: u64,
+}
+
+fn io(path: &Path) -> impl Fn(std::io::Error) -> CheckpointError + '_ {
+    move |source| CheckpointError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Reads a state directory (if it holds a scan) and cuts a damaged log tail away.
+pub fn resume(dir: &Path, width: u32, height: u32) -> Result<Resumed, CheckpointError> {
+    let log = dir.join("curves.log");
+    let mut out = Resumed {
+        background: None,
+        frames: Vec::new(),
+        stopped: None,
+    };
+    let bg = dir.join("background.png");
+    if bg.exists() {
+        let img = image::open(&bg)
+            .map_err(|e| CheckpointError::Format {
+                path: bg.clone(),
+                message: e.to_string(),
+            })?
+            .into_rgb8();
+        if img.width() != width || img.height() != height {
+            return Err(CheckpointError::Size {
+                path: bg,
+                got_w: img.width(),
+                got_h: img.height(),
+                want_w: width,
+                want_h: height,
+            });
+        }
+        out.background = Some(img);
+    }
+    if !log.exists() {
+        return Ok(out);
+    }
+    let mut bytes = Vec::new();
+    File::open(&log)
+        .and_then(|mut f| f.read_to_end(&mut bytes))
+        .map_err(io(&log))?;
+    if bytes.len() < HEADER_BYTES as usize || &bytes[..8] != MAGIC {
+        return Err(CheckpointError::Format {
+            path: log,
+            message: "not a crossline curves log (expected magic CRSLCURV)".into(),
+        });
+    }
+    let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
+    if version != VERSION {
+        return Err(CheckpointError::Format {
+            path: log,
+            message: format!("version {version}, this crossline reads {VERSION}"),
+        });
+    }
+    let w = u32::from_le_bytes([bytes[12], bytes[13], bytes[14], bytes[15]]);
+    let h = u32::from_le_bytes([bytes[16], bytes[17], bytes[18], bytes[19]]);
+    if (w, h) != (width, height) {
+        return Err(CheckpointError::Size {
+            path: log,
+            got_w: w,
+            got_h: h,
+            want_w: width,
+            want_h: height,
+        });
+    }
+    let mut at = HEADER_BYTES as usize;
+    while at < bytes.len() {
+        match decode(&bytes[at..]) {
+            Ok((f, len)) if f.index == out.frames.len() as u64 => {
+                out.frames.push(f);
+                at += len;
+            }
+            Ok((f, _)) => {
+                out.stopped = Some(format!(
+                    "record at byte {at} is frame {}, expected {}",
+                    f.index,
+                    out.frames.len()
+                ));
+                break;
+            }
+            Err(why) => {
+                out.stopped = Some(format!("record at byte {at}: {why}"));
+                break;
+            }
+        }
+    }
+    if at < bytes.len() {
+        // Cut the damaged tail so appending continues from the last whole frame.
+        OpenOptions::new()
+            .write(true)
+            .open(&log)
+            .and_then(|f| f.set_len(at as u64))
+            .map_err(io(&log))?;
+    }
+    Ok(out)
+}
+
+impl CheckpointWriter {
+    /// Opens `dir/curves.log` for appending (creating it with its header).
+    pub fn open(
+        dir: &Path,
+        width: u32,
+        height: u32,
+        interval: Duration,
+    ) -> Result<Self, CheckpointError> {
+        std::fs::create_dir_all(dir).map_err(io(dir))?;
+        let path = dir.join("curves.log");
+        let exists = path.metadata().is_ok_and(|m| m.len() >= HEADER_BYTES);
+        let file = OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .map_err(io(&path))?;
+        let mut file = BufWriter::with_capacity(1 << 20, file);
+        if !exists {
+            file.get_ref().set_len(0).map_err(io(&path))?;
+            let mut h = Vec::with_capacity(HEADER_BYTES as usize);
+            h.extend_from_slice(MAGIC);
+            h.extend_from_slice(&VERSION.to_le_bytes());
+            h.extend_from_slice(&width.to_le_bytes());
+            h.extend_from_slice(&height.to_le_bytes());
+            file.write_all(&h).map_err(io(&path))?;
+        }
+        Ok(Self {
+            path,
+            file,
+            record: Vec::new(),
+            interval,
+            last_sync: Instant::now(),
+            frames: 0,
+        })
+    }
+
+    /// Saves the background (once per scan).
+    pub fn save_background(dir: &Path, image: &RgbImage) -> Result<(), CheckpointError> {
+        let path = dir.join("background.png");
+        let tmp = dir.join("background.png.tmp");
+        image
+            .save_with_format(&tmp, image::ImageFormat::Png)
+            .map_err(|e| CheckpointError::Format {
+                path: tmp.clone(),
+                message: e.to_string(),
+            })?;
+        std::fs::rename(&tmp, &path).map_err(io(&path))
+    }
+
+    /// Appends a frame; every `interval` the log is flushed and synced to disk.
+    pub fn append(&mut self, frame: &FrameCurves) -> Result<(), CheckpointError> {
+        encode(frame, &mut self.record);
+        self.file.write_all(&self.record).map_err(io(&self.path))?;
+        self.frames += 1;
+        if self.last_sync.elapsed() >= self.interval {
+            self.sync()?;
+        }
+        Ok(())
+    }
+
+    pub fn sync(&mut self) -> Result<(), CheckpointError> {
+        self.file.flush().map_err(io(&self.path))?;
+        self.file.get_ref().sync_data().map_err(io(&self.path))?;
+        self.last_sync = Instant::now();
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(i: u64) -> FrameCurves {
+        FrameCurves {
+            index: i,
+            source_position: i + 3,
+            sequence: 100 + i as u32,
+            timestamp_nanos: 33_000_000 * i,
+            curves: vec![Curve {
+                laser: (i % 2) as u8,
+                points_px: vec![[1.5, 2.25], [3.0, 4.0 + i as f32]],
+                points: vec![[0.1, -0.2], [0.3, 0.4 + i as f64 * 1e-9]],
+                strength: vec![40.0, 50.5],
+                polyline: vec![[0.1, -0.2], [0.3, 0.4]],
+            }],
+        }
+    }
+
+    #[test]
+    fn log_round_trips_and_survives_a_cut_tail() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut w =
+            CheckpointWriter::open(dir.path(), 64, 48, Duration::from_secs(3600)).expect("open");
+        for i in 0..5 {
+            w.append(&frame(i)).expect("append");
+        }
+        w.sync().expect("sync");
+        drop(w);
+        let r = resume(dir.path(), 64, 48).expect("resume");
+        assert_eq!(r.frames, (0..5).map(frame).collect::<Vec<_>>());
+        assert!(r.stopped.is_none());
+
+        // A crash in the middle of the sixth record.
+        let log = dir.path().join("curves.log");
+        let whole = std::fs::metadata(&log).expect("meta").len();
+        let mut rec = Vec::new();
+        encode(&frame(5), &mut rec);
+        let mut f = OpenOptions::new().append(true).open(&log).expect("open");
+        f.write_all(&rec[..rec.len() / 2]).expect("write");
+        drop(f);
+        let r = resume(dir.path(), 64, 48).expect("resume");
+        assert_eq!(r.frames.len(), 5);
+        assert!(r.stopped.as_deref().is_some_and(|s| s.contains("cut off")));
+        assert_eq!(
+            std::fs::metadata(&log).expect("meta").len(),
+            whole,
+            "tail cut"
+        );
+        // Appending continues cleanly after the cut.
+        let mut w =
+            CheckpointWriter::open(dir.path(), 64, 48, Duration::from_secs(3600)).expect("open");
+        w.append(&frame(5)).expect("append");
+        w.sync().expect("sync");
+        let r = resume(dir.path(), 64, 48).expect("resume");
+        assert_eq!(r.frames.len(), 6);
+        assert!(matches!(
+            resume(dir.path(), 640, 480),
+            Err(CheckpointError::Size { .. })
+        ));
+    }
+
+    #[test]
+    fn a_flipped_bit_stops_the_log_there() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut w =
+            CheckpointWriter::open(dir.path(), 8, 8, Duration::from_secs(3600)).expect("open");
+        for i in 0..3 {
+            w.append(&frame(i)).expect("append");
+        }
+        w.sync().expect("sync");
+        let log = dir.path().join("curves.log");
+        let mut bytes = std::fs::read(&log).expect("read");
+        let mut rec = Vec::new();
+        encode(&frame(0), &mut rec);
+        let second = HEADER_BYTES as usize + rec.len() + 60; // inside the points
+        bytes[second] ^= 0x10;
+        std::fs::write(&log, &bytes).expect("write");
+        let r = resume(dir.path(), 8, 8).expect("resume");
+        assert_eq!(r.frames.len(), 1);
+        assert!(r.stopped.as_deref().is_some_and(|s| s.contains("CRC")));
+    }
+}

@@ -1,0 +1,1213 @@
+//! The live daemon (`crossline serve`): camera or replay in, growing cloud out.
+//!
+//! ```text
+//!  capture ──ring (preallocated slots)──▶ extract-0..N ──bounded──▶ solver ──▶ hub ──▶ net (tokio)
+//!     │  (drops + counts when full)          (decode, background,     (reorder,          stream clients
+//!     └─▶ recording (dump)                    Steger, colour, link)    incremental,      status socket
+//!                                                                      checkpoint)
+//! ```
+//!
+//! - `capture` never waits on the workers (except in a lossless replay, which has no
+//!   camera to keep up with): a frame that finds no free ring slot is dropped and
+//!   counted. It records every buffer before anything else looks at it.
+//! - `extract-i` decode and extract. The first `background.median_frames` frames are
+//!   held back until their temporal median is known; then they, and all later frames,
+//!   are measured against it. Frames are numbered by the capture thread, so the
+//!   results are the same for any number of workers.
+//! - `solver` puts results back in frame order, checkpoints them, and feeds the
+//!   [`incremental`] solver, whose output goes to the [`net::Hub`].
+//! - `status` publishes a status line every interval and on events, and talks to
+//!   systemd (`READY`, `STATUS`, `WATCHDOG` from pipeline progress).
+//!
+//! Shutdown (SIGTERM/SIGINT, end of a replay): capture stops, the ring drains, the
+//! final solve runs over every curve, the cloud (PLY) and report (JSON) are written,
+//! stream clients get the final epoch and `END`, and `run` returns.
+
+pub mod checkpoint;
+pub mod incremental;
+pub mod net;
+pub mod notify;
+pub mod status;
+pub mod stream;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{bounded, Receiver, RecvTimeoutError, Sender};
+use image::RgbImage;
+use serde::{Deserialize, Serialize};
+
+use crate::camera::Camera;
+use crate::capture::dump::{decode_rgb, DumpHeader, DumpWriter};
+use crate::capture::{CaptureError, FrameSource, Next};
+use crate::cloud::ScaleMode;
+use crate::config::Config;
+use crate::extract::{Background, Curve, Extractor};
+use crate::ring::{self, FrameMeta, Recv, Slot};
+
+use checkpoint::{CheckpointWriter, FrameCurves};
+use incremental::{Incremental, IncrementalParams, SolverCounts};
+use status::{DeviceState, Status};
+use stream::EpochReason;
+
+/// The `[serve]` section of `crossline.toml`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServeConfig {
+    pub camera: String,
+    pub device: String,
+    pub formats: Vec<String>,
+    pub width: u32,
+    pub height: u32,
+    pub fps: u32,
+    pub buffers: u32,
+    pub ring_slots: usize,
+    pub workers: usize,
+    pub out_dir: String,
+    pub record: bool,
+    pub record_rotate_mib: u64,
+    pub checkpoint_interval_s: f64,
+    pub min_planes_first_solve: usize,
+    pub solve_growth: f64,
+    pub status_socket: String,
+    pub status_interval_ms: u64,
+    pub stream_tcp: String,
+    pub stream_unix: String,
+    pub client_queue_mib: usize,
+    pub drain_timeout_s: f64,
+    pub reconnect_max_backoff_s: f64,
+}
+
+impl Default for ServeConfig {
+    fn default() -> Self {
+        Self {
+            camera: String::new(),
+            device: "/dev/video0".into(),
+            formats: vec!["MJPG".into(), "YUYV".into()],
+            width: 1920,
+            height: 1080,
+            fps: 30,
+            buffers: 4,
+            ring_slots: 8,
+            workers: 0,
+            out_dir: "/var/lib/crossline".into(),
+            record: true,
+            record_rotate_mib: 2048,
+            checkpoint_interval_s: 2.0,
+            min_planes_first_solve: 40,
+            solve_growth: 1.5,
+            status_socket: "/run/crossline/status.sock".into(),
+            status_interval_ms: 1000,
+            stream_tcp: "127.0.0.1:7878".into(),
+            stream_unix: String::new(),
+            client_queue_mib: 64,
+            drain_timeout_s: 5.0,
+            reconnect_max_backoff_s: 5.0,
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    #[error("the stream is {got_w}x{got_h} but the camera file is for {want_w}x{want_h}: calibrate at the capture size or change [serve] width/height")]
+    Size {
+        got_w: u32,
+        got_h: u32,
+        want_w: u32,
+        want_h: u32,
+    },
+    #[error(transparent)]
+    Net(#[from] net::NetError),
+    #[error(transparent)]
+    Checkpoint(#[from] checkpoint::CheckpointError),
+    #[error(transparent)]
+    Dump(#[from] crate::capture::dump::DumpError),
+    #[error(transparent)]
+    Extract(#[from] crate::extract::ExtractError),
+    #[error("{what} {path}: {source}")]
+    Io {
+        what: &'static str,
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("writing the cloud: {0}")]
+    Ply(#[from] crate::ply::PlyError),
+    #[error("cannot start thread {name}: {source}")]
+    Thread {
+        name: String,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// Everything `run` needs besides the source.
+pub struct ServeOptions {
+    pub camera: Camera,
+    pub config: Config,
+    pub scale: ScaleMode,
+    /// Where the scan's state, cloud and report go.
+    pub out_dir: PathBuf,
+    /// Output paths (default: `out_dir/<scan>.ply` and `.json`).
+    pub cloud_path: Option<PathBuf>,
+    pub report_path: Option<PathBuf>,
+    /// Identity of the input, to recognise the scan a checkpoint belongs to.
+    pub input_id: String,
+    /// Record raw buffers (a live camera; replays are not recorded again).
+    pub record: bool,
+}
+
+/// Counters shared by the threads; read by the status publisher.
+#[derive(Default)]
+pub struct Shared {
+    pub frames_in: AtomicU64,
+    pub frames_dropped_ring: AtomicU64,
+    pub frames_dropped_driver: AtomicU64,
+    pub frames_decoded: AtomicU64,
+    pub decode_errors: AtomicU64,
+    pub frames_processed: AtomicU64,
+    pub frames_with_laser: AtomicU64,
+    pub ring_depth: AtomicU64,
+    pub device_state: AtomicU8,
+    pub recording_bytes: AtomicU64,
+    pub recording_file: Mutex<String>,
+    pub solver: Mutex<SolverCounts>,
+    pub capture_beats: AtomicU64,
+    pub solver_beats: AtomicU64,
+    pub last_error: Mutex<Option<String>>,
+}
+
+/// How a serve run ended.
+#[derive(Debug, Serialize)]
+pub struct ServeReport {
+    pub version: u32,
+    pub scan: String,
+    pub input: String,
+    pub resumed_frames: u64,
+    pub frames_in: u64,
+    pub frames_dropped_ring: u64,
+    pub frames_dropped_driver: u64,
+    pub decode_errors: u64,
+    pub frames_processed: u64,
+    pub epochs: u32,
+    pub cloud: PathBuf,
+    pub points: usize,
+    pub latency: net::Latency,
+    pub stream_clients_total: u64,
+    pub stream_resyncs: u64,
+    pub stream_dropped_clients: u64,
+    pub cpu_seconds: f64,
+    pub wall_seconds: f64,
+    /// Why capture stopped early (a damaged recording, a failed device), if it did.
+    pub capture_error: Option<String>,
+    pub reconstruction: Option<crate::reconstruct::ReconstructReport>,
+    pub solve_error: Option<String>,
+}
+
+pub const REPORT_VERSION: u32 = 1;
+
+/// Stack of the extraction and solver threads: the detector's and the median's
+/// per-pixel work arrays live on the stack, more than the 2 MiB default.
+pub const WORKER_STACK_BYTES: usize = 16 << 20;
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// The background, learnt from the first frames before any is extracted.
+struct Warmup {
+    need: usize,
+    state: Mutex<WarmState>,
+    ready: Condvar,
+}
+
+/// A frame held during the warm-up (`None`: it could not be decoded).
+type Held = (FrameMeta, Option<RgbImage>);
+
+/// The background and the frames held until it was known.
+type WarmedUp = (Arc<Background>, Vec<Held>);
+
+#[derive(Default)]
+struct WarmState {
+    held: Vec<Held>,
+    background: Option<Arc<Background>>,
+}
+
+impl Warmup {
+    fn background(&self) -> Option<Arc<Background>> {
+        lock(&self.state).background.clone()
+    }
+
+    /// Waits for the background, giving up when `stop` (workers exit) is set.
+    fn wait(&self, stop: &AtomicBool) -> Option<Arc<Background>> {
+        let mut s = lock(&self.state);
+        loop {
+            if let Some(b) = &s.background {
+                return Some(b.clone());
+            }
+            if stop.load(Ordering::Relaxed) {
+                return None;
+            }
+            s = self
+                .ready
+                .wait_timeout(s, Duration::from_millis(50))
+                .map(|(g, _)| g)
+                .unwrap_or_else(|e| e.into_inner().0);
+        }
+    }
+
+    /// Holds a warm-up frame; when the last one arrives, returns every held frame and
+    /// the background made of them.
+    fn hold(
+        &self,
+        meta: FrameMeta,
+        image: Option<RgbImage>,
+    ) -> Option<WarmedUp> {
+        let mut s = lock(&self.state);
+        s.held.push((meta, image));
+        if s.held.len() < self.need {
+            return None;
+        }
+        self.complete(&mut s)
+    }
+
+    fn complete(
+        &self,
+        s: &mut WarmState,
+    ) -> Option<WarmedUp> {
+        let mut held = std::mem::take(&mut s.held);
+        held.sort_by_key(|(m, _)| m.index);
+        let images: Vec<&RgbImage> = held.iter().filter_map(|(_, i)| i.as_ref()).collect();
+        let bg = match Background::median_of(&images) {
+            Ok(b) => b,
+            Err(e) => {
+                tracing::warn!("no background from the first frames ({e}); using black");
+                let (w, h) = images.first().map_or((1, 1), |i| i.dimensions());
+                Background::black(w, h)
+            }
+        };
+        let bg = Arc::new(bg);
+        s.background = Some(bg.clone());
+        self.ready.notify_all();
+        Some((bg, held))
+    }
+
+    /// End of stream before the warm-up filled: use what there is.
+    fn flush(&self) -> Option<WarmedUp> {
+        let mut s = lock(&self.state);
+        if s.background.is_some() || s.held.is_empty() {
+            return None;
+        }
+        self.complete(&mut s)
+    }
+}
+
+/// What a worker sends the solver.
+struct Extracted {
+    meta: FrameMeta,
+    curves: Vec<Curve>,
+}
+
+/// A scan's identity and where its files go.
+struct ScanFiles {
+    id: String,
+    state: PathBuf,
+    cloud: PathBuf,
+    report: PathBuf,
+    recordings: PathBuf,
+}
+
+#[derive(Serialize, Deserialize)]
+struct Session {
+    version: u32,
+    scan: String,
+    input: String,
+    width: u32,
+    height: u32,
+}
+
+/// UTC time as `YYYYMMDDTHHMMSSZ` (civil-from-days, no time zone database needed).
+fn utc_stamp() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs()) as i64;
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}{m:02}{d:02}T{:02}{:02}{:02}Z",
+        rem / 3600,
+        (rem / 60) % 60,
+        rem % 60
+    )
+}
+
+/// Finds the unfinished scan in `out_dir/state` (same input) or starts a new one.
+fn open_scan(
+    opts: &ServeOptions,
+    width: u32,
+    height: u32,
+) -> Result<(ScanFiles, bool), ServeError> {
+    let io = |what, path: &Path| {
+        let path = path.to_path_buf();
+        move |source| ServeError::Io { what, path, source }
+    };
+    let state = opts.out_dir.join("state");
+    std::fs::create_dir_all(&opts.out_dir).map_err(io("cannot create", &opts.out_dir))?;
+    let session_path = state.join("session.json");
+    let mut resumed = false;
+    let mut id = None;
+    if let Ok(text) = std::fs::read_to_string(&session_path) {
+        match serde_json::from_str::<Session>(&text) {
+            Ok(s) if s.input == opts.input_id && (s.width, s.height) == (width, height) => {
+                id = Some(s.scan);
+                resumed = true;
+            }
+            Ok(s) => {
+                let aside = opts.out_dir.join(format!("{}.state", s.scan));
+                tracing::warn!(
+                    "{} holds an unfinished scan of another input ({}); keeping it in {}",
+                    state.display(),
+                    s.input,
+                    aside.display()
+                );
+                std::fs::rename(&state, &aside).map_err(io("cannot move", &state))?;
+            }
+            Err(e) => {
+                let aside = opts
+                    .out_dir
+                    .join(format!("unreadable-{}.state", utc_stamp()));
+                tracing::warn!(
+                    "{}: {e}; keeping that state in {}",
+                    session_path.display(),
+                    aside.display()
+                );
+                std::fs::rename(&state, &aside).map_err(io("cannot move", &state))?;
+            }
+        }
+    }
+    let id = id.unwrap_or_else(utc_stamp);
+    std::fs::create_dir_all(&state).map_err(io("cannot create", &state))?;
+    if !resumed {
+        let s = Session {
+            version: 1,
+            scan: id.clone(),
+            input: opts.input_id.clone(),
+            width,
+            height,
+        };
+        let text = serde_json::to_string_pretty(&s).unwrap_or_default();
+        std::fs::write(&session_path, text).map_err(io("cannot write", &session_path))?;
+    }
+    Ok((
+        ScanFiles {
+            cloud: opts
+                .cloud_path
+                .clone()
+                .unwrap_or_else(|| opts.out_dir.join(format!("{id}.ply"))),
+            report: opts
+                .report_path
+                .clone()
+                .unwrap_or_else(|| opts.out_dir.join(format!("{id}.json"))),
+            recordings: opts.out_dir.join("recordings"),
+            state,
+            id,
+        },
+        resumed,
+    ))
+}
+
+/// Rotating recording of raw buffers.
+struct Recorder {
+    dir: PathBuf,
+    scan: String,
+    header: DumpHeader,
+    rotate_bytes: u64,
+    part: u32,
+    writer: Option<DumpWriter>,
+}
+
+impl Recorder {
+    fn write(&mut self, shared: &Shared, sequence: u32, ts: u64, flags: u32, payload: &[u8]) {
+        if self
+            .writer
+            .as_ref()
+            .is_some_and(|w| w.bytes() >= self.rotate_bytes)
+        {
+            if let Some(w) = self.writer.take() {
+                let _ = w.finish();
+            }
+        }
+        if self.writer.is_none() {
+            self.part += 1;
+            let path = self
+                .dir
+                .join(format!("{}-{:03}.dump", self.scan, self.part));
+            match std::fs::create_dir_all(&self.dir)
+                .map_err(|source| crate::capture::dump::DumpError::Io {
+                    path: self.dir.clone(),
+                    source,
+                })
+                .and_then(|_| DumpWriter::create(&path, &self.header))
+            {
+                Ok(w) => {
+                    tracing::info!("recording to {}", path.display());
+                    *lock(&shared.recording_file) = path.display().to_string();
+                    self.writer = Some(w);
+                }
+                Err(e) => {
+                    tracing::error!("cannot record: {e}");
+                    *lock(&shared.last_error) = Some(format!("recording: {e}"));
+                    return;
+                }
+            }
+        }
+        if let Some(w) = self.writer.as_mut() {
+            let before = w.bytes();
+            if let Err(e) = w.write_frame(sequence, ts, flags, payload) {
+                tracing::error!("recording: {e}");
+                *lock(&shared.last_error) = Some(format!("recording: {e}"));
+                self.writer = None;
+                return;
+            }
+            shared
+                .recording_bytes
+                .fetch_add(w.bytes() - before, Ordering::Relaxed);
+        }
+    }
+}
+
+/// Runs the daemon on `source` until it ends or `stop` is set.
+pub fn run(
+    mut source: Box<dyn FrameSource>,
+    opts: ServeOptions,
+    stop: Arc<AtomicBool>,
+) -> Result<ServeReport, ServeError> {
+    let started = Instant::now();
+    let cpu_start = cpu_seconds();
+    let cfg = opts.config.serve.clone();
+    let header = source.header().clone();
+    if (header.width, header.height) != (opts.camera.width, opts.camera.height) {
+        return Err(ServeError::Size {
+            got_w: header.width,
+            got_h: header.height,
+            want_w: opts.camera.width,
+            want_h: opts.camera.height,
+        });
+    }
+    Extractor::new(&opts.config.extract, &opts.camera)?;
+    let (scan, resumed_scan) = open_scan(&opts, header.width, header.height)?;
+    let resumed = if resumed_scan {
+        checkpoint::resume(&scan.state, header.width, header.height)?
+    } else {
+        checkpoint::Resumed {
+            background: None,
+            frames: Vec::new(),
+            stopped: None,
+        }
+    };
+    if let Some(why) = &resumed.stopped {
+        tracing::warn!("checkpoint ended early ({why}); those frames are processed again");
+    }
+    let resumed_frames = resumed.frames.len() as u64;
+    if resumed_scan {
+        tracing::info!(
+            scan = %scan.id,
+            frames = resumed_frames,
+            "resuming the unfinished scan from its checkpoint"
+        );
+    }
+
+    // Sockets first, so a bad address fails before any work.
+    let none_if_empty = |s: &str| (!s.is_empty()).then(|| s.to_string());
+    let endpoints = net::Endpoints {
+        stream_tcp: none_if_empty(&cfg.stream_tcp),
+        stream_unix: none_if_empty(&cfg.stream_unix).map(PathBuf::from),
+        status_unix: none_if_empty(&cfg.status_socket).map(PathBuf::from),
+    };
+    let listeners = net::bind(&endpoints)?;
+    if let Some(addr) = listeners.tcp_addr {
+        tracing::info!(%addr, "cloud stream listening");
+    }
+    let hello = serde_json::json!({
+        "width": header.width,
+        "height": header.height,
+        "scan": scan.id,
+        "daemon": concat!("crossline ", env!("CARGO_PKG_VERSION")),
+    })
+    .to_string();
+    let hub = Arc::new(net::Hub::new(&hello, cfg.client_queue_mib << 20, started));
+    let feed = Arc::new(net::StatusFeed::new());
+    let net_stop = Arc::new(tokio::sync::Notify::new());
+    let shared = Arc::new(Shared::default());
+    let notifier = notify::Notifier::from_env();
+
+    let workers = if cfg.workers == 0 {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    } else {
+        cfg.workers
+    };
+    let slot_bytes = match &header.fourcc {
+        b"MJPG" | b"JPEG" => (header.width * header.height) as usize,
+        _ => (header.bytes_per_line.max(header.width * 3) * header.height) as usize,
+    };
+    let (producer, consumer) = ring::ring(cfg.ring_slots.max(2), slot_bytes);
+    let (result_tx, result_rx) = bounded::<Extracted>(2 * workers + 2);
+    let warmup = Arc::new(Warmup {
+        need: opts.config.background.median_frames.max(1),
+        state: Mutex::new(WarmState::default()),
+        ready: Condvar::new(),
+    });
+    if let Some(bg) = resumed.background.clone() {
+        lock(&warmup.state).background = Some(Arc::new(Background::from_image(bg)));
+    }
+    let mut solver = Incremental::new(
+        opts.camera.clone(),
+        opts.config.clone(),
+        IncrementalParams {
+            min_planes_first_solve: cfg.min_planes_first_solve,
+            solve_growth: cfg.solve_growth,
+        },
+        opts.scale.clone(),
+    );
+    if let Some(bg) = &resumed.background {
+        solver.set_colour_source(Arc::new(bg.clone()));
+    }
+    let mut checkpoint = CheckpointWriter::open(
+        &scan.state,
+        header.width,
+        header.height,
+        Duration::from_secs_f64(cfg.checkpoint_interval_s.max(0.05)),
+    )?;
+    // Replay the checkpointed frames into the solver (no sending: nobody listens yet).
+    let mut start_position = 0;
+    for f in &resumed.frames {
+        start_position = f.source_position + 1;
+        let _ = solver.add_frame(f.curves.clone(), 0);
+    }
+    shared
+        .frames_processed
+        .store(resumed_frames, Ordering::Relaxed);
+    if start_position > 0 {
+        source.seek(start_position).map_err(|e| ServeError::Io {
+            what: "cannot resume in",
+            path: PathBuf::from(&opts.input_id),
+            source: std::io::Error::other(e.to_string()),
+        })?;
+    }
+    let workers_stop = Arc::new(AtomicBool::new(false));
+    let capture_error: Arc<Mutex<Option<String>>> = Arc::new(Mutex::new(None));
+
+    let mut report = None;
+    let scope_result: Result<(), ServeError> = std::thread::scope(|s| {
+        // Sockets.
+        let net_handle = {
+            let (hub, feed, net_stop) = (hub.clone(), feed.clone(), net_stop.clone());
+            let drain = Duration::from_secs_f64(cfg.drain_timeout_s.max(0.0));
+            std::thread::Builder::new()
+                .name("net".into())
+                .spawn_scoped(s, move || listeners.serve(hub, feed, net_stop, drain))
+                .map_err(|source| ServeError::Thread {
+                    name: "net".into(),
+                    source,
+                })?
+        };
+
+        // Capture.
+        let capture_done = Arc::new(AtomicBool::new(false));
+        {
+            let shared = shared.clone();
+            let stop = stop.clone();
+            let capture_error = capture_error.clone();
+            let capture_done = capture_done.clone();
+            let recorder = opts.record.then(|| Recorder {
+                dir: scan.recordings.clone(),
+                scan: scan.id.clone(),
+                header: header.clone(),
+                rotate_bytes: cfg.record_rotate_mib.max(1) << 20,
+                part: 0,
+                writer: None,
+            });
+            let first_index = resumed_frames;
+            std::thread::Builder::new()
+                .name("capture".into())
+                .spawn_scoped(s, move || {
+                    capture_loop(
+                        source.as_mut(),
+                        producer,
+                        recorder,
+                        &shared,
+                        &stop,
+                        first_index,
+                        started,
+                        &capture_error,
+                    );
+                    capture_done.store(true, Ordering::Relaxed);
+                })
+                .map_err(|source| ServeError::Thread {
+                    name: "capture".into(),
+                    source,
+                })?;
+        }
+
+        // Workers.
+        for w in 0..workers {
+            let consumer = consumer.clone();
+            let result_tx = result_tx.clone();
+            let (shared, warmup, workers_stop) =
+                (shared.clone(), warmup.clone(), workers_stop.clone());
+            let (camera, params) = (&opts.camera, &opts.config.extract);
+            let header = &header;
+            std::thread::Builder::new()
+                .name(format!("extract-{w}"))
+                .stack_size(WORKER_STACK_BYTES)
+                .spawn_scoped(s, move || {
+                    worker_loop(
+                        consumer,
+                        result_tx,
+                        header,
+                        camera,
+                        params,
+                        &shared,
+                        &warmup,
+                        &workers_stop,
+                    )
+                })
+                .map_err(|source| ServeError::Thread {
+                    name: format!("extract-{w}"),
+                    source,
+                })?;
+        }
+        drop(consumer);
+        drop(result_tx);
+
+        // Status.
+        let status_stop = Arc::new(AtomicBool::new(false));
+        {
+            let (shared, feed, hub, status_stop) = (
+                shared.clone(),
+                feed.clone(),
+                hub.clone(),
+                status_stop.clone(),
+            );
+            let interval = Duration::from_millis(cfg.status_interval_ms.max(50));
+            let scan_id = scan.id.clone();
+            let notifier = &notifier;
+            let capture_done = capture_done.clone();
+            std::thread::Builder::new()
+                .name("status".into())
+                .spawn_scoped(s, move || {
+                    let mut last_beats = (u64::MAX, u64::MAX);
+                    let mut ready = false;
+                    let mut last_ping = Instant::now();
+                    while !status_stop.load(Ordering::Relaxed) {
+                        let st = Status::gather(&shared, &hub, &scan_id, started);
+                        if !ready && st.device == DeviceState::Streaming {
+                            notifier.notify("READY=1");
+                            ready = true;
+                        }
+                        notifier.notify(&format!("STATUS={}", st.summary()));
+                        feed.publish(st.to_line());
+                        // The watchdog hears from the pipeline's progress: both the
+                        // capture loop and the solver loop must have turned since the
+                        // last ping (they turn at least every 100 ms while alive).
+                        let beats = (
+                            shared.capture_beats.load(Ordering::Relaxed),
+                            shared.solver_beats.load(Ordering::Relaxed),
+                        );
+                        let capture_alive =
+                            beats.0 != last_beats.0 || capture_done.load(Ordering::Relaxed);
+                        if let Some(every) = notifier.watchdog_every {
+                            if capture_alive
+                                && beats.1 != last_beats.1
+                                && last_ping.elapsed() >= every / 2
+                            {
+                                notifier.notify("WATCHDOG=1");
+                                last_ping = Instant::now();
+                            }
+                        }
+                        last_beats = beats;
+                        let t = Instant::now();
+                        while t.elapsed() < interval && !status_stop.load(Ordering::Relaxed) {
+                            std::thread::sleep(Duration::from_millis(20));
+                        }
+                    }
+                })
+                .map_err(|source| ServeError::Thread {
+                    name: "status".into(),
+                    source,
+                })?;
+        }
+
+        // Solver, on this thread.
+        let result = solver_loop(
+            &mut solver,
+            &result_rx,
+            &mut checkpoint,
+            &scan,
+            &warmup,
+            &hub,
+            &feed,
+            &shared,
+            resumed_frames,
+            &opts,
+        );
+        workers_stop.store(true, Ordering::Relaxed);
+        let outcome = result.and_then(|()| {
+            finish(
+                &mut solver,
+                &mut checkpoint,
+                &scan,
+                &hub,
+                &feed,
+                &shared,
+                &opts,
+            )
+        });
+        notifier.notify("STOPPING=1");
+        net_stop.notify_one();
+        status_stop.store(true, Ordering::Relaxed);
+        let _ = net_handle.join();
+        report = Some(outcome);
+        Ok(())
+    });
+    scope_result?;
+    let (points, rec, solve_error) = match report {
+        Some(r) => r?,
+        None => (0, None, None),
+    };
+    // The scan is finished: its state moves beside its cloud.
+    let done_state = opts.out_dir.join(format!("{}.state", scan.id));
+    let _ = std::fs::remove_dir_all(&done_state);
+    if let Err(e) = std::fs::rename(&scan.state, &done_state) {
+        tracing::warn!("cannot move {} aside: {e}", scan.state.display());
+    }
+    let report = ServeReport {
+        version: REPORT_VERSION,
+        scan: scan.id.clone(),
+        input: opts.input_id.clone(),
+        resumed_frames,
+        frames_in: shared.frames_in.load(Ordering::Relaxed),
+        frames_dropped_ring: shared.frames_dropped_ring.load(Ordering::Relaxed),
+        frames_dropped_driver: shared.frames_dropped_driver.load(Ordering::Relaxed),
+        decode_errors: shared.decode_errors.load(Ordering::Relaxed),
+        frames_processed: shared.frames_processed.load(Ordering::Relaxed),
+        epochs: solver.epoch(),
+        cloud: scan.cloud.clone(),
+        points,
+        latency: hub.stats.latency(),
+        stream_clients_total: hub.stats.clients_total.load(Ordering::Relaxed),
+        stream_resyncs: hub.stats.resyncs.load(Ordering::Relaxed),
+        stream_dropped_clients: hub.stats.dropped_clients.load(Ordering::Relaxed),
+        cpu_seconds: cpu_seconds() - cpu_start,
+        wall_seconds: started.elapsed().as_secs_f64(),
+        capture_error: lock(&capture_error).clone(),
+        reconstruction: rec,
+        solve_error,
+    };
+    let text = serde_json::to_string_pretty(&report).unwrap_or_default();
+    write_atomic(&scan.report, text.as_bytes())?;
+    Ok(report)
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ServeError> {
+    let tmp = path.with_extension("tmp");
+    let io = |what| {
+        move |source| ServeError::Io {
+            what,
+            path: path.to_path_buf(),
+            source,
+        }
+    };
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(io("cannot create the folder of"))?;
+    }
+    std::fs::write(&tmp, bytes).map_err(io("cannot write"))?;
+    std::fs::rename(&tmp, path).map_err(io("cannot write"))
+}
+
+/// Process CPU time (user + system), seconds.
+pub fn cpu_seconds() -> f64 {
+    // /proc/self/stat fields 14 and 15: utime and stime in clock ticks (100 Hz on
+    // every Linux configuration that matters here).
+    std::fs::read_to_string("/proc/self/stat")
+        .ok()
+        .and_then(|s| {
+            let rest = &s[s.rfind(')')? + 2..];
+            let f: Vec<&str> = rest.split(' ').collect();
+            let ut: f64 = f.get(11)?.parse().ok()?;
+            let st: f64 = f.get(12)?.parse().ok()?;
+            Some((ut + st) / 100.0)
+        })
+        .unwrap_or(0.0)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn capture_loop(
+    source: &mut dyn FrameSource,
+    producer: ring::Producer,
+    mut recorder: Option<Recorder>,
+    shared: &Shared,
+    stop: &AtomicBool,
+    first_index: u64,
+    started: Instant,
+    capture_error: &Mutex<Option<String>>,
+) {
+    let lossless = source.lossless();
+    let mut index = first_index;
+    let mut last_sequence: Option<u32> = None;
+    shared
+        .device_state
+        .store(DeviceState::Streaming as u8, Ordering::Relaxed);
+    while !stop.load(Ordering::Relaxed) {
+        shared.capture_beats.fetch_add(1, Ordering::Relaxed);
+        shared
+            .ring_depth
+            .store(producer.depth() as u64, Ordering::Relaxed);
+        let frame = match source.next(Duration::from_millis(100)) {
+            Ok(Next::Frame(f)) => f,
+            Ok(Next::Idle) => continue,
+            Ok(Next::Lost(why)) => {
+                tracing::warn!("camera lost: {why}; retrying");
+                shared
+                    .device_state
+                    .store(DeviceState::Lost as u8, Ordering::Relaxed);
+                *lock(&shared.last_error) = Some(format!("device lost: {why}"));
+                last_sequence = None;
+                continue;
+            }
+            Ok(Next::Resumed) => {
+                tracing::info!("camera back; the scan continues");
+                shared
+                    .device_state
+                    .store(DeviceState::Streaming as u8, Ordering::Relaxed);
+                continue;
+            }
+            Ok(Next::End) => break,
+            Err(e) => {
+                let msg = match &e {
+                    CaptureError::Dump(d) => d.to_string(),
+                    other => other.to_string(),
+                };
+                tracing::error!("capture stopped: {msg}");
+                *lock(capture_error) = Some(msg.clone());
+                *lock(&shared.last_error) = Some(msg);
+                break;
+            }
+        };
+        let received_nanos = started.elapsed().as_nanos() as u64;
+        shared.frames_in.fetch_add(1, Ordering::Relaxed);
+        if let Some(last) = last_sequence {
+            let gap = frame.sequence.wrapping_sub(last).wrapping_sub(1);
+            if gap > 0 && gap < 1 << 30 {
+                shared
+                    .frames_dropped_driver
+                    .fetch_add(u64::from(gap), Ordering::Relaxed);
+            }
+        }
+        last_sequence = Some(frame.sequence);
+        if let Some(r) = recorder.as_mut() {
+            r.write(
+                shared,
+                frame.sequence,
+                frame.timestamp_nanos,
+                frame.flags,
+                frame.bytes,
+            );
+        }
+        let slot = if lossless {
+            let mut slot = None;
+            while slot.is_none() && !stop.load(Ordering::Relaxed) {
+                shared.capture_beats.fetch_add(1, Ordering::Relaxed);
+                slot = producer.claim_timeout(Duration::from_millis(100));
+            }
+            slot
+        } else {
+            producer.try_claim()
+        };
+        let Some(mut slot): Option<Slot> = slot else {
+            shared.frames_dropped_ring.fetch_add(1, Ordering::Relaxed);
+            tracing::trace!(sequence = frame.sequence, "ring full: frame dropped");
+            continue;
+        };
+        slot.fill(
+            FrameMeta {
+                index,
+                sequence: frame.sequence,
+                timestamp_nanos: frame.timestamp_nanos,
+                flags: frame.flags,
+                source_position: frame.position,
+                received_nanos,
+            },
+            frame.bytes,
+        );
+        index += 1;
+        if producer.publish(slot).is_err() {
+            break;
+        }
+    }
+    if let Some(w) = recorder.and_then(|r| r.writer) {
+        let _ = w.finish();
+    }
+    shared
+        .device_state
+        .store(DeviceState::Stopped as u8, Ordering::Relaxed);
+}
+
+#[allow(clippy::too_many_arguments)]
+fn worker_loop(
+    consumer: ring::Consumer,
+    results: Sender<Extracted>,
+    header: &DumpHeader,
+    camera: &Camera,
+    params: &crate::extract::ExtractParams,
+    shared: &Shared,
+    warmup: &Warmup,
+    stop: &AtomicBool,
+) {
+    let Ok(mut extractor) = Extractor::new(params, camera) else {
+        return;
+    };
+    let send =
+        |meta: FrameMeta, curves: Vec<Curve>| results.send(Extracted { meta, curves }).is_ok();
+    loop {
+        let slot = match consumer.recv_timeout(Duration::from_millis(100)) {
+            Recv::Frame(s) => s,
+            Recv::Idle => continue,
+            Recv::Closed => break,
+        };
+        let meta = slot.meta;
+        let image = match decode_rgb(header, &slot.bytes) {
+            Ok(img) if img.dimensions() == (camera.width, camera.height) => Some(img),
+            Ok(img) => {
+                tracing::warn!(
+                    frame = meta.index,
+                    "frame is {:?}, expected {}x{}",
+                    img.dimensions(),
+                    camera.width,
+                    camera.height
+                );
+                None
+            }
+            Err(e) => {
+                tracing::warn!(frame = meta.index, "cannot decode frame: {e}");
+                None
+            }
+        };
+        drop(slot);
+        if image.is_some() {
+            shared.frames_decoded.fetch_add(1, Ordering::Relaxed);
+        } else {
+            shared.decode_errors.fetch_add(1, Ordering::Relaxed);
+        }
+        let background = match warmup.background() {
+            Some(b) => b,
+            None if (meta.index as usize) < warmup.need => {
+                if let Some((bg, held)) = warmup.hold(meta, image) {
+                    for (m, img) in held {
+                        let curves = img.map_or_else(Vec::new, |i| extractor.extract(&i, &bg));
+                        if !send(m, curves) {
+                            return;
+                        }
+                    }
+                }
+                continue;
+            }
+            None => match warmup.wait(stop) {
+                Some(b) => b,
+                None => return,
+            },
+        };
+        let curves = image.map_or_else(Vec::new, |i| extractor.extract(&i, &background));
+        if !send(meta, curves) {
+            return;
+        }
+    }
+    // The stream ended before the warm-up filled: the last worker out uses what came.
+    if let Some((bg, held)) = warmup.flush() {
+        for (m, img) in held {
+            let curves = img.map_or_else(Vec::new, |i| extractor.extract(&i, &bg));
+            if !send(m, curves) {
+                return;
+            }
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn solver_loop(
+    solver: &mut Incremental,
+    results: &Receiver<Extracted>,
+    checkpoint: &mut CheckpointWriter,
+    scan: &ScanFiles,
+    warmup: &Warmup,
+    hub: &net::Hub,
+    feed: &net::StatusFeed,
+    shared: &Shared,
+    first_index: u64,
+    opts: &ServeOptions,
+) -> Result<(), ServeError> {
+    let mut pending: BTreeMap<u64, Extracted> = BTreeMap::new();
+    let mut next = first_index;
+    let mut background_saved = false;
+    let mut epoch_seen = solver.epoch();
+    if epoch_seen > 0 {
+        // A resumed scan with a solution already: the stream starts from it.
+        hub.begin_epoch(epoch_seen, EpochReason::First);
+    }
+    loop {
+        shared.solver_beats.fetch_add(1, Ordering::Relaxed);
+        match results.recv_timeout(Duration::from_millis(100)) {
+            Ok(e) => {
+                pending.insert(e.meta.index, e);
+            }
+            Err(RecvTimeoutError::Timeout) => continue,
+            Err(RecvTimeoutError::Disconnected) => {
+                if !pending.is_empty() {
+                    tracing::warn!(
+                        "{} frames after a gap at frame {next} were not processed",
+                        pending.len()
+                    );
+                }
+                break;
+            }
+        }
+        while let Some(e) = pending.remove(&next) {
+            if !background_saved {
+                if let Some(bg) = warmup.background() {
+                    if !scan.state.join("background.png").exists() {
+                        CheckpointWriter::save_background(&scan.state, bg.image())?;
+                    }
+                    solver.set_colour_source(Arc::new(bg.image().clone()));
+                    background_saved = true;
+                }
+            }
+            if !e.curves.is_empty() {
+                shared.frames_with_laser.fetch_add(1, Ordering::Relaxed);
+            }
+            checkpoint.append(&FrameCurves {
+                index: e.meta.index,
+                source_position: e.meta.source_position,
+                sequence: e.meta.sequence,
+                timestamp_nanos: e.meta.timestamp_nanos,
+                curves: e.curves.clone(),
+            })?;
+            let out = solver.add_frame(e.curves, e.meta.received_nanos);
+            if let Some((epoch, reason)) = out.epoch {
+                hub.begin_epoch(epoch, reason);
+                tracing::info!(
+                    epoch,
+                    planes = solver.counts.planes,
+                    "new epoch of the cloud"
+                );
+                feed.publish(status::event_line("epoch", &format!("epoch {epoch}")));
+                epoch_seen = epoch;
+            }
+            if !out.points.is_empty() {
+                hub.push_points(stream::points(epoch_seen, out.captured_nanos, &out.points));
+            }
+            shared.frames_processed.fetch_add(1, Ordering::Relaxed);
+            *lock(&shared.solver) = solver.counts;
+            tracing::trace!(frame = e.meta.index, "frame processed");
+            next += 1;
+        }
+    }
+    let _ = opts;
+    checkpoint.sync()?;
+    Ok(())
+}
+
+type Finished = (
+    usize,
+    Option<crate::reconstruct::ReconstructReport>,
+    Option<String>,
+);
+
+fn finish(
+    solver: &mut Incremental,
+    checkpoint: &mut CheckpointWriter,
+    scan: &ScanFiles,
+    hub: &net::Hub,
+    feed: &net::StatusFeed,
+    shared: &Shared,
+    opts: &ServeOptions,
+) -> Result<Finished, ServeError> {
+    checkpoint.sync()?;
+    feed.publish(status::event_line(
+        "final_solve",
+        "capture stopped; final solve",
+    ));
+    let (cloud, rec, err) = match solver.finish() {
+        Ok(rec) => (rec.cloud, Some(rec.report), None),
+        Err(e) => {
+            let msg = anyhow_like(&e);
+            tracing::warn!("final solve: {msg}; writing an empty cloud");
+            (
+                crate::ply::Cloud {
+                    colors: Some(Vec::new()),
+                    frames: Some(Vec::new()),
+                    lasers: Some(Vec::new()),
+                    ..Default::default()
+                },
+                None,
+                Some(msg),
+            )
+        }
+    };
+    let tmp = scan.cloud.with_extension("ply.tmp");
+    if let Some(dir) = scan.cloud.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|source| ServeError::Io {
+            what: "cannot create",
+            path: dir.to_path_buf(),
+            source,
+        })?;
+    }
+    let comments = vec![
+        format!("crossline serve scan {}", scan.id),
+        format!("input {}", opts.input_id),
+        "camera frame, OpenCV axes; one global scale (see the report's scale_mode)".to_string(),
+    ];
+    crate::ply::write_ply(&tmp, &cloud, &comments)?;
+    std::fs::rename(&tmp, &scan.cloud).map_err(|source| ServeError::Io {
+        what: "cannot write",
+        path: scan.cloud.clone(),
+        source,
+    })?;
+    tracing::info!(
+        points = cloud.len(),
+        "cloud written to {}",
+        scan.cloud.display()
+    );
+    hub.begin_epoch(solver.epoch(), EpochReason::Final);
+    hub.push_points(stream::points(
+        solver.epoch(),
+        0,
+        &stream::points_of(&cloud, 0..cloud.len()),
+    ));
+    hub.end(cloud.len() as u64);
+    *lock(&shared.solver) = solver.counts;
+    let _ = opts;
+    Ok((cloud.len(), rec, err))
+}
+
+/// An error with its chain of causes, one line.
+fn anyhow_like(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut src = e.source();
+    while let Some(c) = src {
+        s.push_str(": ");
+        s.push_str(&c.to_string());
+        src = c.source();
+    }
+    s
+}

@@ -1,0 +1,571 @@
+//! The daemon's sockets: the cloud stream ([`super::stream`]) over TCP and/or a Unix
+//! socket, and the status socket (newline-delimited JSON, [`super::status`]).
+//!
+//! tokio serves the sockets only, on one thread named `net`. The pipeline hands
+//! messages to the [`Hub`] with plain, never-blocking calls: each client has its own
+//! bounded queue of shared messages, so a slow or stuck client costs the pipeline
+//! nothing but a pointer per message, and is resynchronised or dropped (see the
+//! protocol's docs) when its queue overflows.
+
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use tokio::io::AsyncWriteExt;
+use tokio::sync::{broadcast, Notify};
+
+use super::stream::{self, EpochReason};
+
+type Message = Arc<[u8]>;
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panic while holding one of these locks is a bug elsewhere; the data (queues of
+    // immutable messages) stays consistent, so carry on with it.
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+#[derive(Default)]
+struct ClientQueue {
+    queue: VecDeque<Message>,
+    bytes: usize,
+    /// Bytes the client has read since it was last resynchronised.
+    written_since_resync: u64,
+    resyncs: u32,
+    /// Set when the client is to be told goodbye and closed.
+    bye: Option<String>,
+}
+
+struct Client {
+    queue: Mutex<ClientQueue>,
+    wake: Notify,
+}
+
+impl Client {
+    fn push(&self, m: Message) {
+        let mut q = lock(&self.queue);
+        q.bytes += m.len();
+        q.queue.push_back(m);
+        drop(q);
+        self.wake.notify_one();
+    }
+}
+
+struct HubState {
+    hello: Message,
+    epoch: u32,
+    /// The current epoch's messages from its `EPOCH` on: what a new client is sent.
+    epoch_messages: Vec<Message>,
+    end: Option<Message>,
+    clients: Vec<Arc<Client>>,
+}
+
+/// Counters the status line reports.
+#[derive(Default)]
+pub struct NetStats {
+    pub clients: AtomicU64,
+    pub clients_total: AtomicU64,
+    pub resyncs: AtomicU64,
+    pub dropped_clients: AtomicU64,
+    pub bytes_sent: AtomicU64,
+    latencies_micros: Mutex<Vec<u64>>,
+}
+
+/// Latency percentiles in milliseconds.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct Latency {
+    pub samples: usize,
+    pub p50_ms: f64,
+    pub p95_ms: f64,
+    pub max_ms: f64,
+}
+
+const MAX_LATENCY_SAMPLES: usize = 1 << 20;
+
+impl NetStats {
+    fn record_latency(&self, micros: u64) {
+        let mut l = lock(&self.latencies_micros);
+        if l.len() < MAX_LATENCY_SAMPLES {
+            l.push(micros);
+        }
+    }
+
+    /// From a frame's capture to its points fully written to a client's socket.
+    pub fn latency(&self) -> Latency {
+        let mut l = lock(&self.latencies_micros).clone();
+        if l.is_empty() {
+            return Latency::default();
+        }
+        l.sort_unstable();
+        let at = |q: f64| l[((l.len() - 1) as f64 * q).round() as usize] as f64 / 1000.0;
+        Latency {
+            samples: l.len(),
+            p50_ms: at(0.5),
+            p95_ms: at(0.95),
+            max_ms: at(1.0),
+        }
+    }
+}
+
+/// Fan-out of the cloud stream to every connected client.
+pub struct Hub {
+    state: Mutex<HubState>,
+    queue_limit: usize,
+    started: Instant,
+    pub stats: NetStats,
+}
+
+impl Hub {
+    pub fn new(hello_json: &str, queue_limit_bytes: usize, started: Instant) -> Self {
+        Self {
+            state: Mutex::new(HubState {
+                hello: stream::hello(hello_json).into(),
+                epoch: 0,
+                epoch_messages: Vec::new(),
+                end: None,
+                clients: Vec::new(),
+            }),
+            queue_limit: queue_limit_bytes.max(1 << 16),
+            started,
+            stats: NetStats::default(),
+        }
+    }
+
+    /// Starts epoch `epoch`: every client drops what it has queued (it is superseded)
+    /// and gets the new `EPOCH`.
+    pub fn begin_epoch(&self, epoch: u32, reason: EpochReason) {
+        let m: Message = stream::epoch(epoch, reason).into();
+        let mut s = lock(&self.state);
+        s.epoch = epoch;
+        s.epoch_messages = vec![m.clone()];
+        s.end = None;
+        for c in &s.clients {
+            {
+                let mut q = lock(&c.queue);
+                q.queue.clear();
+                q.bytes = 0;
+            }
+            c.push(m.clone());
+        }
+    }
+
+    /// Appends points to the current epoch.
+    pub fn push_points(&self, messages: Vec<Vec<u8>>) {
+        let mut s = lock(&self.state);
+        for m in messages {
+            let m: Message = m.into();
+            s.epoch_messages.push(m.clone());
+            for c in &s.clients {
+                c.push(m.clone());
+            }
+        }
+        let overflowing: Vec<Arc<Client>> = s
+            .clients
+            .iter()
+            .filter(|c| lock(&c.queue).bytes > self.queue_limit)
+            .cloned()
+            .collect();
+        for c in overflowing {
+            self.resync(&s, &c);
+        }
+    }
+
+    /// The scan is complete: `END` to everyone.
+    pub fn end(&self, total_points: u64) {
+        let mut s = lock(&self.state);
+        let m: Message = stream::end(s.epoch, total_points).into();
+        s.end = Some(m.clone());
+        for c in &s.clients {
+            c.push(m.clone());
+        }
+    }
+
+    fn resync(&self, s: &HubState, c: &Client) {
+        let mut q = lock(&c.queue);
+        if q.resyncs > 0 && q.written_since_resync == 0 {
+            q.bye = Some(format!(
+                "dropped: read nothing while {} MiB of cloud stream queued up, twice",
+                self.queue_limit >> 20
+            ));
+            q.queue.clear();
+            q.bytes = 0;
+            drop(q);
+            self.stats.dropped_clients.fetch_add(1, Ordering::Relaxed);
+            c.wake.notify_one();
+            return;
+        }
+        q.resyncs += 1;
+        q.written_since_resync = 0;
+        q.queue.clear();
+        q.bytes = 0;
+        let first: Message = stream::epoch(s.epoch, EpochReason::Resync).into();
+        q.bytes += first.len();
+        q.queue.push_back(first);
+        for m in s.epoch_messages.iter().skip(1).chain(s.end.iter()) {
+            q.bytes += m.len();
+            q.queue.push_back(m.clone());
+        }
+        // Resending the epoch shares the hub's messages, so it costs no memory: only
+        // what arrives after it counts against the bound.
+        q.bytes = 0;
+        drop(q);
+        self.stats.resyncs.fetch_add(1, Ordering::Relaxed);
+        c.wake.notify_one();
+    }
+
+    fn add_client(&self) -> Arc<Client> {
+        let mut s = lock(&self.state);
+        let client = Arc::new(Client {
+            queue: Mutex::new(ClientQueue::default()),
+            wake: Notify::new(),
+        });
+        client.push(s.hello.clone());
+        for m in s.epoch_messages.iter().chain(s.end.iter()) {
+            client.push(m.clone());
+        }
+        // What a new client catches up on is shared with the hub; only growth counts.
+        lock(&client.queue).bytes = 0;
+        s.clients.push(client.clone());
+        self.stats.clients.fetch_add(1, Ordering::Relaxed);
+        self.stats.clients_total.fetch_add(1, Ordering::Relaxed);
+        client
+    }
+
+    fn remove_client(&self, client: &Arc<Client>) {
+        let mut s = lock(&self.state);
+        s.clients.retain(|c| !Arc::ptr_eq(c, client));
+        self.stats.clients.fetch_sub(1, Ordering::Relaxed);
+    }
+
+    /// True when every client has been sent everything (or there are none).
+    pub fn drained(&self) -> bool {
+        let s = lock(&self.state);
+        s.clients.iter().all(|c| lock(&c.queue).queue.is_empty())
+    }
+
+    fn now_nanos(&self) -> u64 {
+        self.started.elapsed().as_nanos() as u64
+    }
+}
+
+/// Resolves once the client is to be dropped.
+async fn wait_for_bye(client: &Client) {
+    loop {
+        let notified = client.wake.notified();
+        let bye = lock(&client.queue).bye.is_some();
+        if bye {
+            return;
+        }
+        notified.await;
+    }
+}
+
+/// Serves one stream client until the stream ends, it goes away or it is dropped.
+async fn serve_client<W: AsyncWriteExt + Unpin>(hub: Arc<Hub>, mut w: W) {
+    let client = hub.add_client();
+    loop {
+        let (bye, next) = {
+            let mut q = lock(&client.queue);
+            match q.bye.take() {
+                Some(reason) => (Some(reason), None),
+                None => {
+                    let m = q.queue.pop_front();
+                    if let Some(m) = &m {
+                        q.bytes = q.bytes.saturating_sub(m.len());
+                    }
+                    (None, m)
+                }
+            }
+        };
+        if let Some(reason) = bye {
+            let bye = stream::bye(&reason);
+            let _ = tokio::time::timeout(Duration::from_secs(1), w.write_all(&bye)).await;
+            break;
+        }
+        match next {
+            Some(m) => {
+                let wrote = tokio::select! {
+                    r = w.write_all(&m) => r.is_ok(),
+                    // A bye while stuck in a write: give up on this write.
+                    () = wait_for_bye(&client) => false,
+                };
+                if !wrote {
+                    let bye = lock(&client.queue).bye.is_some();
+                    if bye {
+                        continue;
+                    }
+                    break;
+                }
+                hub.stats
+                    .bytes_sent
+                    .fetch_add(m.len() as u64, Ordering::Relaxed);
+                lock(&client.queue).written_since_resync += m.len() as u64;
+                if let Some(t) = stream::captured_nanos(&m).filter(|&t| t > 0) {
+                    hub.stats
+                        .record_latency(hub.now_nanos().saturating_sub(t) / 1000);
+                }
+                if m.len() >= 5 && m[4] == stream::END {
+                    let _ = w.flush().await;
+                    break;
+                }
+            }
+            None => {
+                let notified = client.wake.notified();
+                let empty = {
+                    let q = lock(&client.queue);
+                    q.queue.is_empty() && q.bye.is_none()
+                };
+                if empty {
+                    notified.await;
+                }
+            }
+        }
+    }
+    let _ = w.shutdown().await;
+    hub.remove_client(&client);
+}
+
+/// Where the sockets listen.
+#[derive(Clone, Debug)]
+pub struct Endpoints {
+    pub stream_tcp: Option<String>,
+    pub stream_unix: Option<PathBuf>,
+    pub status_unix: Option<PathBuf>,
+}
+
+/// The newest status line and the feed of new ones.
+pub struct StatusFeed {
+    pub latest: Mutex<Arc<str>>,
+    pub tx: broadcast::Sender<Arc<str>>,
+}
+
+impl StatusFeed {
+    pub fn new() -> Self {
+        let (tx, _) = broadcast::channel(64);
+        Self {
+            latest: Mutex::new(Arc::from("")),
+            tx,
+        }
+    }
+
+    /// Publishes a line (without its newline). Never blocks.
+    pub fn publish(&self, line: String) {
+        let line: Arc<str> = Arc::from(line);
+        *lock(&self.latest) = line.clone();
+        let _ = self.tx.send(line);
+    }
+}
+
+impl Default for StatusFeed {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum NetError {
+    #[error("cannot listen on {what}: {source}")]
+    Bind {
+        what: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("cannot start the socket runtime: {0}")]
+    Runtime(#[source] std::io::Error),
+}
+
+fn bind_unix(path: &Path, mode: u32) -> Result<tokio::net::UnixListener, NetError> {
+    use std::os::unix::fs::PermissionsExt;
+    let err = |source| NetError::Bind {
+        what: path.display().to_string(),
+        source,
+    };
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(err)?;
+    }
+    // A socket file left by a crashed run would refuse the bind.
+    if std::fs::symlink_metadata(path).is_ok_and(|m| {
+        use std::os::unix::fs::FileTypeExt;
+        m.file_type().is_socket()
+    }) {
+        let _ = std::fs::remove_file(path);
+    }
+    let l = tokio::net::UnixListener::bind(path).map_err(err)?;
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode)).map_err(err)?;
+    Ok(l)
+}
+
+/// The bound sockets, ready to be served.
+pub struct Listeners {
+    runtime: tokio::runtime::Runtime,
+    tcp: Option<tokio::net::TcpListener>,
+    stream_unix: Option<tokio::net::UnixListener>,
+    status_unix: Option<tokio::net::UnixListener>,
+    pub tcp_addr: Option<std::net::SocketAddr>,
+    paths: Vec<PathBuf>,
+}
+
+/// Binds every socket (before the pipeline starts, so a bad address fails early).
+pub fn bind(endpoints: &Endpoints) -> Result<Listeners, NetError> {
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(NetError::Runtime)?;
+    let _guard = runtime.enter();
+    let mut paths = Vec::new();
+    let tcp = match &endpoints.stream_tcp {
+        Some(addr) => {
+            let std_l = std::net::TcpListener::bind(addr).map_err(|source| NetError::Bind {
+                what: format!("tcp {addr}"),
+                source,
+            })?;
+            std_l
+                .set_nonblocking(true)
+                .map_err(|source| NetError::Bind {
+                    what: format!("tcp {addr}"),
+                    source,
+                })?;
+            Some(
+                tokio::net::TcpListener::from_std(std_l).map_err(|source| NetError::Bind {
+                    what: format!("tcp {addr}"),
+                    source,
+                })?,
+            )
+        }
+        None => None,
+    };
+    let tcp_addr = tcp.as_ref().and_then(|l| l.local_addr().ok());
+    let stream_unix = match &endpoints.stream_unix {
+        Some(p) => {
+            paths.push(p.clone());
+            Some(bind_unix(p, 0o660)?)
+        }
+        None => None,
+    };
+    let status_unix = match &endpoints.status_unix {
+        Some(p) => {
+            paths.push(p.clone());
+            Some(bind_unix(p, 0o660)?)
+        }
+        None => None,
+    };
+    drop(_guard);
+    Ok(Listeners {
+        runtime,
+        tcp,
+        stream_unix,
+        status_unix,
+        tcp_addr,
+        paths,
+    })
+}
+
+impl Listeners {
+    /// Serves until `stop` is notified, then gives stream clients up to `drain` to
+    /// receive the end of the stream. Runs on the calling thread.
+    pub fn serve(self, hub: Arc<Hub>, status: Arc<StatusFeed>, stop: Arc<Notify>, drain: Duration) {
+        let Listeners {
+            runtime,
+            tcp,
+            stream_unix,
+            status_unix,
+            paths,
+            ..
+        } = self;
+        runtime.block_on(async move {
+            let mut tasks = tokio::task::JoinSet::new();
+            if let Some(l) = tcp {
+                let hub = hub.clone();
+                tasks.spawn(async move {
+                    loop {
+                        match l.accept().await {
+                            Ok((sock, peer)) => {
+                                tracing::info!(%peer, "cloud stream client connected");
+                                let _ = sock.set_nodelay(true);
+                                tokio::spawn(serve_client(hub.clone(), sock));
+                            }
+                            Err(e) => {
+                                tracing::warn!("cloud stream accept: {e}");
+                                tokio::time::sleep(Duration::from_millis(100)).await;
+                            }
+                        }
+                    }
+                });
+            }
+            if let Some(l) = stream_unix {
+                let hub = hub.clone();
+                tasks.spawn(async move {
+                    loop {
+                        match l.accept().await {
+                            Ok((sock, _)) => {
+                                tracing::info!("cloud stream client connected (unix)");
+                                tokio::spawn(serve_client(hub.clone(), sock));
+                            }
+                            Err(e) => {
+                                tracing::warn!("cloud stream accept: {e}");
+                                tokio::time::sleep(Duration::from_millis(100)).await;
+                            }
+                        }
+                    }
+                });
+            }
+            if let Some(l) = status_unix {
+                let status = status.clone();
+                tasks.spawn(async move {
+                    loop {
+                        match l.accept().await {
+                            Ok((sock, _)) => {
+                                tokio::spawn(serve_status(status.clone(), sock));
+                            }
+                            Err(e) => {
+                                tracing::warn!("status accept: {e}");
+                                tokio::time::sleep(Duration::from_millis(100)).await;
+                            }
+                        }
+                    }
+                });
+            }
+            stop.notified().await;
+            let deadline = Instant::now() + drain;
+            while !hub.drained() && Instant::now() < deadline {
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+            // One more status line carries the final state to listeners.
+            tokio::time::sleep(Duration::from_millis(20)).await;
+            tasks.abort_all();
+        });
+        for p in paths {
+            let _ = std::fs::remove_file(p);
+        }
+    }
+}
+
+async fn serve_status(status: Arc<StatusFeed>, mut sock: tokio::net::UnixStream) {
+    let mut rx = status.tx.subscribe();
+    let first = lock(&status.latest).clone();
+    if !first.is_empty() && write_line(&mut sock, &first).await.is_err() {
+        return;
+    }
+    loop {
+        match rx.recv().await {
+            Ok(line) => {
+                if write_line(&mut sock, &line).await.is_err() {
+                    return;
+                }
+            }
+            // A listener that falls behind skips lines; status is a gauge.
+            Err(broadcast::error::RecvError::Lagged(_)) => {}
+            Err(broadcast::error::RecvError::Closed) => return,
+        }
+    }
+}
+
+async fn write_line(sock: &mut tokio::net::UnixStream, line: &str) -> std::io::Result<()> {
+    let mut b = Vec::with_capacity(line.len() + 1);
+    b.extend_from_slice(line.as_bytes());
+    b.push(b'\n');
+    tokio::time::timeout(Duration::from_secs(5), sock.write_all(&b))
+        .await
+        .map_err(|_| std::io::Error::new(std::io::ErrorKind::TimedOut, "status client stuck"))?
+}
