@@ -1,5 +1,6 @@
 //! Integration tests: the real `crossline` binary on real files.
 
+mod daemon;
 mod util;
 
 use std::path::Path;

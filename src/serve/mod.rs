@@ -261,11 +261,7 @@ impl Warmup {
 
     /// Holds a warm-up frame; when the last one arrives, returns every held frame and
     /// the background made of them.
-    fn hold(
-        &self,
-        meta: FrameMeta,
-        image: Option<RgbImage>,
-    ) -> Option<WarmedUp> {
+    fn hold(&self, meta: FrameMeta, image: Option<RgbImage>) -> Option<WarmedUp> {
         let mut s = lock(&self.state);
         s.held.push((meta, image));
         if s.held.len() < self.need {
@@ -274,10 +270,7 @@ impl Warmup {
         self.complete(&mut s)
     }
 
-    fn complete(
-        &self,
-        s: &mut WarmState,
-    ) -> Option<WarmedUp> {
+    fn complete(&self, s: &mut WarmState) -> Option<WarmedUp> {
         let mut held = std::mem::take(&mut s.held);
         held.sort_by_key(|(m, _)| m.index);
         let images: Vec<&RgbImage> = held.iter().filter_map(|(_, i)| i.as_ref()).collect();

@@ -1,0 +1,294 @@
+//! The real `crossline serve` process on recorded dumps: sockets, checkpoints, damaged
+//! input, workers.
+
+use std::io::{BufRead, BufReader};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use crossline::ply::{read_ply, Cloud};
+use crossline::serve::stream::Follower;
+use serde_json::Value;
+
+use crate::util::{crossline, fixtures, run_ok, stderr_of_failure};
+
+fn dump() -> PathBuf {
+    fixtures().join("sim-bricks/frames.dump")
+}
+
+fn camera() -> PathBuf {
+    fixtures().join("sim-bricks/camera.yml")
+}
+
+/// `crossline serve --replay DUMP` with its sockets and outputs under `dir`.
+fn serve(dir: &Path, input: &Path, rate: &str) -> Command {
+    let mut cmd = crossline();
+    cmd.arg("serve")
+        .arg("--camera")
+        .arg(camera())
+        .arg("--replay")
+        .arg(input)
+        .args(["--rate", rate])
+        .arg("--out-dir")
+        .arg(dir.join("out"))
+        .arg("--out")
+        .arg(dir.join("cloud.ply"))
+        .arg("--report")
+        .arg(dir.join("report.json"))
+        .arg("--status-socket")
+        .arg(dir.join("status.sock"))
+        .arg("--stream-unix")
+        .arg(dir.join("cloud.sock"))
+        .args(["--stream-tcp", ""]);
+    cmd
+}
+
+fn wait_for(path: &Path, within: Duration) {
+    let t = Instant::now();
+    while !path.exists() {
+        assert!(t.elapsed() < within, "{} did not appear", path.display());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+fn wait_exit(child: &mut Child, within: Duration) -> std::process::ExitStatus {
+    let t = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            return status;
+        }
+        if t.elapsed() > within {
+            let _ = child.kill();
+            panic!("crossline serve did not finish within {within:?}");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn report(dir: &Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).expect("report"))
+        .expect("report JSON")
+}
+
+fn same_cloud(a: &Cloud, b: &Cloud) -> bool {
+    a.points == b.points && a.colors == b.colors && a.frames == b.frames && a.lasers == b.lasers
+}
+
+/// Follows the stream on `sock` to its END, in a thread.
+fn follow(sock: PathBuf) -> std::thread::JoinHandle<Follower> {
+    std::thread::spawn(move || {
+        let s = UnixStream::connect(&sock).expect("connect to the cloud stream");
+        let mut r = BufReader::new(s);
+        let mut f = Follower::default();
+        f.follow(&mut r, true).expect("stream to END");
+        f
+    })
+}
+
+#[test]
+fn replay_streams_status_and_clients_end_with_the_final_cloud() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path();
+    let mut child = serve(dir, &dump(), "realtime")
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("spawn serve");
+    wait_for(&dir.join("cloud.sock"), Duration::from_secs(20));
+    let early = follow(dir.join("cloud.sock"));
+
+    // Status lines arrive and parse, and `crossline status` reads them too.
+    let status = UnixStream::connect(dir.join("status.sock")).expect("status socket");
+    let mut lines = BufReader::new(status).lines();
+    let mut seen = Vec::new();
+    while seen.len() < 2 {
+        let line = lines.next().expect("a status line").expect("read");
+        let v: Value = serde_json::from_str(&line).expect("status line is JSON");
+        assert_eq!(v["version"], 1, "{line}");
+        if v["type"] == "status" {
+            assert!(v["frames_in"].as_u64().is_some(), "{line}");
+            assert!(v["device"].is_string(), "{line}");
+            seen.push(v);
+        }
+    }
+    let out = run_ok(
+        crossline()
+            .args(["status", "--once", "--socket"])
+            .arg(dir.join("status.sock")),
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("frames") && text.contains("planes"), "{text}");
+
+    // A client that joins mid-scan.
+    std::thread::sleep(Duration::from_millis(1500));
+    let late = follow(dir.join("cloud.sock"));
+
+    let status = wait_exit(&mut child, Duration::from_secs(60));
+    assert!(status.success(), "serve failed: {status}");
+    let final_cloud = read_ply(&dir.join("cloud.ply")).expect("final cloud");
+    assert!(final_cloud.len() > 10_000, "{} points", final_cloud.len());
+    for (name, client) in [("early", early), ("late", late)] {
+        let f = client.join().expect("client thread");
+        assert!(f.ended);
+        assert!(
+            same_cloud(&f.cloud(), &final_cloud),
+            "{name} client: {} points, final cloud {}",
+            f.points.len(),
+            final_cloud.len()
+        );
+    }
+    let r = report(dir);
+    assert_eq!(r["frames_in"], 100);
+    assert_eq!(r["stream_clients_total"], 2);
+    assert!(r["latency"]["samples"].as_u64().unwrap_or(0) > 0, "{r}");
+}
+
+#[test]
+fn one_and_two_workers_give_the_same_cloud() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let mut clouds = Vec::new();
+    for workers in ["1", "2"] {
+        let dir = tmp.path().join(workers);
+        run_ok(serve(&dir, &dump(), "max").args(["--workers", workers]));
+        let r = report(&dir);
+        assert_eq!(r["frames_processed"], 100, "{r}");
+        assert_eq!(
+            r["frames_dropped_ring"], 0,
+            "a lossless replay drops nothing"
+        );
+        clouds.push(read_ply(&dir.join("cloud.ply")).expect("cloud"));
+    }
+    assert!(clouds[0].len() > 10_000);
+    assert!(same_cloud(&clouds[0], &clouds[1]), "clouds differ");
+}
+
+#[test]
+fn stuck_client_does_not_stop_the_pipeline() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path();
+    let config = dir.join("c.toml");
+    std::fs::write(
+        &config,
+        "[serve]\nclient_queue_mib = 0\ndrain_timeout_s = 1.0\n",
+    )
+    .expect("config");
+    let mut child = serve(dir, &dump(), "max")
+        .arg("--config")
+        .arg(&config)
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("spawn serve");
+    wait_for(&dir.join("cloud.sock"), Duration::from_secs(20));
+    // Connects and never reads.
+    let stuck = UnixStream::connect(dir.join("cloud.sock")).expect("connect");
+    let status = wait_exit(&mut child, Duration::from_secs(60));
+    assert!(status.success(), "serve failed: {status}");
+    drop(stuck);
+    let r = report(dir);
+    assert_eq!(r["frames_processed"], 100, "{r}");
+    assert!(
+        r["stream_resyncs"].as_u64().unwrap_or(0)
+            + r["stream_dropped_clients"].as_u64().unwrap_or(0)
+            > 0,
+        "the stuck client was neither resynchronised nor dropped: {r}"
+    );
+    assert!(read_ply(&dir.join("cloud.ply")).expect("cloud").len() > 10_000);
+}
+
+#[test]
+fn kill_9_then_restart_resumes_from_the_checkpoint() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path();
+    let config = dir.join("c.toml");
+    std::fs::write(&config, "[serve]\ncheckpoint_interval_s = 0.1\n").expect("config");
+    let mut child = serve(dir, &dump(), "realtime")
+        .arg("--config")
+        .arg(&config)
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("spawn serve");
+    wait_for(&dir.join("status.sock"), Duration::from_secs(20));
+    let status = UnixStream::connect(dir.join("status.sock")).expect("status");
+    for line in BufReader::new(status).lines() {
+        let v: Value = serde_json::from_str(&line.expect("line")).expect("json");
+        if v["frames_processed"].as_u64().unwrap_or(0) >= 40 {
+            break;
+        }
+    }
+    child.kill().expect("kill -9");
+    let _ = child.wait();
+    assert!(!dir.join("cloud.ply").exists(), "killed before the end");
+    let log = dir.join("out/state/curves.log");
+    assert!(log.exists(), "no checkpoint after the kill");
+
+    let out = run_ok(serve(dir, &dump(), "max").arg("--config").arg(&config));
+    let r = report(dir);
+    let resumed = r["resumed_frames"].as_u64().unwrap_or(0);
+    assert!(resumed >= 30, "resumed only {resumed} frames: {r}");
+    assert_eq!(
+        resumed + r["frames_in"].as_u64().unwrap_or(0),
+        100,
+        "the restart must start after the checkpointed frames: {r}"
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("resuming"), "{err}");
+    // Against an uninterrupted run: identical when the first run dropped nothing
+    // (real-time replay may drop frames on a loaded machine; then the clouds differ
+    // by those frames only).
+    let whole = tmp.path().join("whole");
+    run_ok(&mut serve(&whole, &dump(), "max"));
+    let (a, b) = (
+        read_ply(&dir.join("cloud.ply")).expect("resumed cloud"),
+        read_ply(&whole.join("cloud.ply")).expect("whole cloud"),
+    );
+    let frames_a = a.frames.clone().unwrap_or_default();
+    let dropped = (0..100u32).filter(|f| !frames_a.contains(f)).count();
+    if r["frames_processed"].as_u64() == Some(100) {
+        assert!(
+            same_cloud(&a, &b),
+            "resumed cloud differs from an uninterrupted run"
+        );
+    } else {
+        assert!(dropped < 20, "{dropped} frames missing after resume");
+    }
+}
+
+#[test]
+fn damaged_dumps_give_clear_errors_and_keep_what_was_whole() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let bytes = std::fs::read(dump()).expect("dump");
+    // Cut in the middle of a frame, as a power loss would.
+    let cut = tmp.path().join("cut.dump");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).expect("write");
+    let dir = tmp.path().join("cut");
+    let err = stderr_of_failure(&mut serve(&dir, &cut, "max"));
+    assert!(
+        err.contains("truncated") && err.contains("capture stopped early"),
+        "{err}"
+    );
+    assert!(
+        read_ply(&dir.join("cloud.ply"))
+            .expect("cloud of the whole frames")
+            .len()
+            > 1000
+    );
+    let r = report(&dir);
+    assert!(r["capture_error"]
+        .as_str()
+        .is_some_and(|e| e.contains("truncated")));
+
+    // A flipped byte inside a frame's payload.
+    let mut bad = bytes.clone();
+    let at = bytes.len() / 2;
+    bad[at] ^= 0x5a;
+    let corrupt = tmp.path().join("corrupt.dump");
+    std::fs::write(&corrupt, &bad).expect("write");
+    let err = stderr_of_failure(&mut serve(&tmp.path().join("corrupt"), &corrupt, "max"));
+    assert!(err.contains("corrupted frame record"), "{err}");
+
+    // Not a dump at all.
+    let junk = tmp.path().join("junk.dump");
+    std::fs::write(&junk, b"hello, not a dump").expect("write");
+    let err = stderr_of_failure(&mut serve(&tmp.path().join("junk"), &junk, "max"));
+    assert!(err.contains("not a crossline dump"), "{err}");
+}
