@@ -91,7 +91,7 @@ impl Default for ServeConfig {
             height: 1080,
             fps: 30,
             buffers: 4,
-            ring_slots: 8,
+            ring_slots: 16,
             workers: 0,
             out_dir: "/var/lib/crossline".into(),
             record: true,
@@ -224,15 +224,18 @@ struct Warmup {
     ready: Condvar,
 }
 
+/// Frames the live background is the median of (spread over the warm-up).
+pub const WARMUP_MEDIAN_FRAMES: usize = 9;
+
 /// A frame held during the warm-up (`None`: it could not be decoded).
 type Held = (FrameMeta, Option<RgbImage>);
-
-/// The background and the frames held until it was known.
-type WarmedUp = (Arc<Background>, Vec<Held>);
 
 #[derive(Default)]
 struct WarmState {
     held: Vec<Held>,
+    /// Held frames waiting for extraction once the background is known; every worker
+    /// takes from here before the ring.
+    backlog: std::collections::VecDeque<Held>,
     background: Option<Arc<Background>>,
 }
 
@@ -261,7 +264,7 @@ impl Warmup {
 
     /// Holds a warm-up frame; when the last one arrives, returns every held frame and
     /// the background made of them.
-    fn hold(&self, meta: FrameMeta, image: Option<RgbImage>) -> Option<WarmedUp> {
+    fn hold(&self, meta: FrameMeta, image: Option<RgbImage>) -> Option<Arc<Background>> {
         let mut s = lock(&self.state);
         s.held.push((meta, image));
         if s.held.len() < self.need {
@@ -270,10 +273,17 @@ impl Warmup {
         self.complete(&mut s)
     }
 
-    fn complete(&self, s: &mut WarmState) -> Option<WarmedUp> {
+    fn complete(&self, s: &mut WarmState) -> Option<Arc<Background>> {
         let mut held = std::mem::take(&mut s.held);
         held.sort_by_key(|(m, _)| m.index);
-        let images: Vec<&RgbImage> = held.iter().filter_map(|(_, i)| i.as_ref()).collect();
+        // The median of a few frames spread over the warm-up: a hand-held laser crosses
+        // any pixel in few of them, and nine cost a fraction of all (the frames behind
+        // them are waiting).
+        let decoded: Vec<&RgbImage> = held.iter().filter_map(|(_, i)| i.as_ref()).collect();
+        let k = decoded.len().min(WARMUP_MEDIAN_FRAMES);
+        let images: Vec<&RgbImage> = (0..k)
+            .map(|i| decoded[(2 * i + 1) * decoded.len() / (2 * k)])
+            .collect();
         let bg = match Background::median_of(&images) {
             Ok(b) => b,
             Err(e) => {
@@ -284,12 +294,18 @@ impl Warmup {
         };
         let bg = Arc::new(bg);
         s.background = Some(bg.clone());
+        s.backlog.extend(held);
         self.ready.notify_all();
-        Some((bg, held))
+        Some(bg)
+    }
+
+    /// A held frame to extract, if any are left.
+    fn take_backlog(&self) -> Option<Held> {
+        lock(&self.state).backlog.pop_front()
     }
 
     /// End of stream before the warm-up filled: use what there is.
-    fn flush(&self) -> Option<WarmedUp> {
+    fn flush(&self) -> Option<Arc<Background>> {
         let mut s = lock(&self.state);
         if s.background.is_some() || s.held.is_empty() {
             return None;
@@ -973,7 +989,21 @@ fn worker_loop(
     };
     let send =
         |meta: FrameMeta, curves: Vec<Curve>| results.send(Extracted { meta, curves }).is_ok();
+    let drain_backlog = |extractor: &mut Extractor, bg: &Background| -> bool {
+        while let Some((m, img)) = warmup.take_backlog() {
+            let curves = img.map_or_else(Vec::new, |i| extractor.extract(&i, bg));
+            if !send(m, curves) {
+                return false;
+            }
+        }
+        true
+    };
     loop {
+        if let Some(bg) = warmup.background() {
+            if !drain_backlog(&mut extractor, &bg) {
+                return;
+            }
+        }
         let slot = match consumer.recv_timeout(Duration::from_millis(100)) {
             Recv::Frame(s) => s,
             Recv::Idle => continue,
@@ -1006,12 +1036,9 @@ fn worker_loop(
         let background = match warmup.background() {
             Some(b) => b,
             None if (meta.index as usize) < warmup.need => {
-                if let Some((bg, held)) = warmup.hold(meta, image) {
-                    for (m, img) in held {
-                        let curves = img.map_or_else(Vec::new, |i| extractor.extract(&i, &bg));
-                        if !send(m, curves) {
-                            return;
-                        }
+                if let Some(bg) = warmup.hold(meta, image) {
+                    if !drain_backlog(&mut extractor, &bg) {
+                        return;
                     }
                 }
                 continue;
@@ -1026,14 +1053,10 @@ fn worker_loop(
             return;
         }
     }
-    // The stream ended before the warm-up filled: the last worker out uses what came.
-    if let Some((bg, held)) = warmup.flush() {
-        for (m, img) in held {
-            let curves = img.map_or_else(Vec::new, |i| extractor.extract(&i, &bg));
-            if !send(m, curves) {
-                return;
-            }
-        }
+    // The stream ended before the warm-up filled: use what came.
+    let bg = warmup.flush().or_else(|| warmup.background());
+    if let Some(bg) = bg {
+        drain_backlog(&mut extractor, &bg);
     }
 }
 
