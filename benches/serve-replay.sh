@@ -47,6 +47,8 @@ print(f"frames in {r['frames_in']}, dropped by the ring {r['frames_dropped_ring'
 l = r["latency"]
 print(f"latency capture -> socket: p50 {l['p50_ms']:.1f} ms, p95 {l['p95_ms']:.1f} ms, "
       f"max {l['max_ms']:.1f} ms over {l['samples']} messages")
+f = r["solver_frame"]
+print(f"solver thread per frame: p50 {f['p50_ms']:.1f} ms, p95 {f['p95_ms']:.1f} ms, max {f['max_ms']:.1f} ms")
 print(f"CPU {r['cpu_seconds']:.1f} s over {r['wall_seconds']:.1f} s wall = "
       f"{100 * r['cpu_seconds'] / r['wall_seconds'] / cores:.0f} % of {cores} cores")
 print(f"epochs {r['epochs']}, points {r['points']}, planes solved "

@@ -52,6 +52,9 @@ struct Segment {
     closed_end: bool,
 }
 
+/// Cells along the larger image side of [`SegmentIndex::for_image`].
+pub const IMAGE_CELLS: f64 = 48.0;
+
 /// Incremental spatial index over the segments of the curves inserted so far.
 #[derive(Clone, Debug)]
 pub struct SegmentIndex {
@@ -98,6 +101,16 @@ impl SegmentIndex {
             s.cell = Some(cell);
         }
         s
+    }
+
+    /// An empty index for curves on an image of `width`×`height` pixels with focal
+    /// length `focal_px`: cells of [`IMAGE_CELLS`]-th of the larger image side. Fixing
+    /// the cell from the image, rather than from the first curve, keeps one short,
+    /// finely simplified first curve from making cells so small that every later long
+    /// segment spans thousands of them.
+    pub fn for_image(width: u32, height: u32, focal_px: f64, min_sin_angle: f64) -> Self {
+        let cell = f64::from(width.max(height)) / IMAGE_CELLS / focal_px;
+        Self::with_cell_size(cell, min_sin_angle)
     }
 
     /// Number of segments stored.

@@ -269,33 +269,64 @@ pub(crate) struct PlaneCurves {
     pub(crate) frame: u32,
     pub(crate) laser: u8,
     pub(crate) curves: Vec<Curve>,
+    /// Per curve, the index in `points` of each polyline vertex.
+    vertices: Vec<Vec<usize>>,
 }
 
 impl PlaneCurves {
+    pub(crate) fn new(frame: u32, laser: u8, curves: Vec<Curve>) -> Self {
+        let vertices = curves
+            .iter()
+            .map(|c| {
+                // Polyline vertices are copies of dense points, in order.
+                let mut at = 0;
+                c.polyline
+                    .iter()
+                    .map(|v| {
+                        if let Some(i) = c.points[at..].iter().position(|p| p == v) {
+                            at += i;
+                        }
+                        at
+                    })
+                    .collect()
+            })
+            .collect();
+        Self {
+            frame,
+            laser,
+            curves,
+            vertices,
+        }
+    }
+
     /// The dense points around `u` of the curve (of this plane) whose polyline passes
     /// closest to `u`: the polyline's segment is found first (polylines are short),
     /// then only the dense points between its two vertices, widened by `radius`, are
     /// searched.
     pub(crate) fn dense_near(&self, u: [f64; 2], radius: f64) -> &[[f64; 2]] {
-        let mut best: Option<(f64, &Curve, usize)> = None;
-        for curve in &self.curves {
+        let mut best: Option<(f64, usize, usize)> = None;
+        for (ci, curve) in self.curves.iter().enumerate() {
             for (k, seg) in curve.polyline.windows(2).enumerate() {
                 let d = crate::intersect::point_segment_distance(u, seg[0], seg[1]);
                 if best.is_none_or(|(b, _, _)| d < b) {
-                    best = Some((d, curve, k));
+                    best = Some((d, ci, k));
                 }
             }
         }
-        let Some((_, curve, k)) = best else {
+        let Some((_, ci, k)) = best else {
             return &[];
         };
-        // Polyline vertices are copies of dense points, in order.
-        let (a, b) = (curve.polyline[k], curve.polyline[k + 1]);
-        let start = curve.points.iter().position(|p| *p == a).unwrap_or(0);
-        let end = curve.points[start..]
-            .iter()
-            .position(|p| *p == b)
-            .map_or(curve.points.len() - 1, |i| start + i);
+        let curve = &self.curves[ci];
+        if curve.points.is_empty() {
+            return &[];
+        }
+        let last = curve.points.len() - 1;
+        let start = self.vertices[ci].get(k).copied().unwrap_or(0).min(last);
+        let end = self.vertices[ci]
+            .get(k + 1)
+            .copied()
+            .unwrap_or(last)
+            .clamp(start, last);
         let r2 = radius * radius;
         let d2 = |p: &[f64; 2]| (p[0] - u[0]).powi(2) + (p[1] - u[1]).powi(2);
         let (mut lo, mut hi) = (start, end);
@@ -420,11 +451,7 @@ pub fn reconstruct_curves(
         }
         for (laser, curves) in by_laser.into_iter().enumerate() {
             if !curves.is_empty() {
-                planes.push(PlaneCurves {
-                    frame: frame as u32,
-                    laser: laser as u8,
-                    curves,
-                });
+                planes.push(PlaneCurves::new(frame as u32, laser as u8, curves));
             }
         }
     }
@@ -443,7 +470,12 @@ pub fn reconstruct_curves(
         .collect();
 
     let t = Instant::now();
-    let mut index = SegmentIndex::new(config.solve.min_sin_angle);
+    let mut index = SegmentIndex::for_image(
+        camera.width,
+        camera.height,
+        camera.fx.max(camera.fy),
+        config.solve.min_sin_angle,
+    );
     let mut crossings: Vec<Crossing> = Vec::new();
     for (id, plane) in planes.iter().enumerate() {
         for curve in &plane.curves {

@@ -82,6 +82,14 @@ pub struct SolverCounts {
     pub orthogonality_rms_deg: f64,
     pub epoch: u32,
     pub points: u64,
+    /// Seconds spent so far: finding and refining crossings, placing new planes,
+    /// triangulating growth, adopting epochs.
+    pub crossings_s: f64,
+    /// Of `crossings_s`, refining crossings on the dense points.
+    pub refine_s: f64,
+    pub extend_s: f64,
+    pub triangulate_s: f64,
+    pub adopt_s: f64,
 }
 
 pub struct Incremental {
@@ -111,7 +119,12 @@ impl Incremental {
         params: IncrementalParams,
         scale: ScaleMode,
     ) -> Self {
-        let index = SegmentIndex::new(config.solve.min_sin_angle);
+        let index = SegmentIndex::for_image(
+            camera.width,
+            camera.height,
+            camera.fx.max(camera.fy),
+            config.solve.min_sin_angle,
+        );
         Self {
             next_solve_at: params.min_planes_first_solve.max(2),
             camera,
@@ -156,11 +169,8 @@ impl Incremental {
         self.per_frame.push(curves);
         for (laser, curves) in by_laser.into_iter().enumerate() {
             if !curves.is_empty() {
-                self.planes.push(PlaneCurves {
-                    frame,
-                    laser: laser as u8,
-                    curves,
-                });
+                self.planes
+                    .push(PlaneCurves::new(frame, laser as u8, curves));
                 self.partner.push(None);
                 self.adjacency.push(Vec::new());
             }
@@ -169,6 +179,7 @@ impl Incremental {
             self.partner[first_new] = Some(first_new as u32 + 1);
             self.partner[first_new + 1] = Some(first_new as u32);
         }
+        let t = std::time::Instant::now();
         // Crossings of the new curves with everything before (and each other).
         let radius = self.config.intersect.refine_radius_px / self.camera.fx.max(self.camera.fy);
         let mut fresh = Vec::new();
@@ -178,6 +189,7 @@ impl Incremental {
                     .insert_into(id as u32, &curve.polyline, &mut fresh);
             }
         }
+        let t_refine = std::time::Instant::now();
         for mut c in fresh {
             if radius > 0.0 {
                 let a = self.planes[c.a as usize].dense_near(c.u, radius);
@@ -191,19 +203,26 @@ impl Incremental {
             self.adjacency[c.b as usize].push((c.a, k));
             self.crossings.push(c);
         }
+        self.counts.refine_s += t_refine.elapsed().as_secs_f64();
         self.counts.planes = self.planes.len() as u64;
         self.counts.crossings = self.crossings.len() as u64;
+        self.counts.crossings_s += t.elapsed().as_secs_f64();
 
         let mut out = Output {
             captured_nanos,
             ..Default::default()
         };
-        if let Some(new_epoch) = self.poll_solve() {
-            out.epoch = Some(new_epoch);
-            out.points = self.epoch_points();
+        let t = std::time::Instant::now();
+        if let Some((epoch, reason, points)) = self.poll_solve() {
+            out.epoch = Some((epoch, reason));
+            out.points = points;
+            self.counts.adopt_s += t.elapsed().as_secs_f64();
         } else if self.solution.is_some() {
             self.extend(first_new..self.planes.len());
+            let t2 = std::time::Instant::now();
+            self.counts.extend_s += (t2 - t).as_secs_f64();
             out.points = self.points_of(first_new..self.planes.len());
+            self.counts.triangulate_s += t2.elapsed().as_secs_f64();
         }
         self.counts.points += out.points.len() as u64;
         self.maybe_start_solve();
@@ -240,8 +259,8 @@ impl Incremental {
         self.next_solve_at = ((n as f64) * self.params.solve_growth.max(1.05)).ceil() as usize;
     }
 
-    /// Adopts a finished background solve; returns the new epoch.
-    fn poll_solve(&mut self) -> Option<(u32, EpochReason)> {
+    /// Adopts a finished background solve; returns the new epoch and its points.
+    fn poll_solve(&mut self) -> Option<(u32, EpochReason, Vec<Point>)> {
         let (rx, n) = self.pending.as_ref()?;
         let n = *n;
         let result = match rx.try_recv() {
@@ -288,13 +307,18 @@ impl Incremental {
         self.epoch += 1;
         self.counts.epoch = self.epoch;
         // The epoch's scale from its whole cloud.
-        let (cloud, pixels) = self.cloud_of(0..self.planes.len(), 1.0);
+        let (mut cloud, pixels) = self.cloud_of(0..self.planes.len(), 1.0);
         let factor = cloud::scale_for(&self.scale, &cloud, &pixels).unwrap_or(1.0);
         if let Some(s) = self.solution.as_mut() {
             s.factor = factor;
         }
+        cloud::apply_scale(&mut cloud, factor);
         self.counts.points = 0;
-        Some((self.epoch, reason))
+        Some((
+            self.epoch,
+            reason,
+            stream::points_of(&cloud, 0..cloud.len()),
+        ))
     }
 
     /// Fits the planes `range` (new since the epoch's solve) from solved neighbours.
@@ -376,10 +400,6 @@ impl Incremental {
         let factor = self.solution.as_ref().map_or(1.0, |s| s.factor);
         let (cloud, _) = self.cloud_of(range, factor);
         stream::points_of(&cloud, 0..cloud.len())
-    }
-
-    fn epoch_points(&self) -> Vec<Point> {
-        self.points_of(0..self.planes.len())
     }
 
     /// The final solve over every curve, exactly as `crossline reconstruct` does it.

@@ -178,6 +178,8 @@ pub struct Shared {
     pub capture_beats: AtomicU64,
     pub solver_beats: AtomicU64,
     pub last_error: Mutex<Option<String>>,
+    pub solver_frame_micros: Mutex<Vec<u64>>,
+    pub live_solver: Mutex<SolverCounts>,
 }
 
 /// How a serve run ended.
@@ -195,7 +197,13 @@ pub struct ServeReport {
     pub epochs: u32,
     pub cloud: PathBuf,
     pub points: usize,
+    /// From a frame's capture to its points written to a stream client's socket.
     pub latency: net::Latency,
+    /// Time the solver thread spent per frame (crossings, placing planes,
+    /// triangulating, adopting a new epoch).
+    pub solver_frame: net::Latency,
+    /// The live solver's last counts (before the final solve) and time per phase.
+    pub live_solver: SolverCounts,
     pub stream_clients_total: u64,
     pub stream_resyncs: u64,
     pub stream_dropped_clients: u64,
@@ -815,6 +823,8 @@ pub fn run(
         cloud: scan.cloud.clone(),
         points,
         latency: hub.stats.latency(),
+        solver_frame: net::Latency::of_micros(lock(&shared.solver_frame_micros).clone()),
+        live_solver: *lock(&shared.live_solver),
         stream_clients_total: hub.stats.clients_total.load(Ordering::Relaxed),
         stream_resyncs: hub.stats.resyncs.load(Ordering::Relaxed),
         stream_dropped_clients: hub.stats.dropped_clients.load(Ordering::Relaxed),
@@ -1118,6 +1128,7 @@ fn solver_loop(
                 timestamp_nanos: e.meta.timestamp_nanos,
                 curves: e.curves.clone(),
             })?;
+            let t = Instant::now();
             let out = solver.add_frame(e.curves, e.meta.received_nanos);
             if let Some((epoch, reason)) = out.epoch {
                 hub.begin_epoch(epoch, reason);
@@ -1134,6 +1145,11 @@ fn solver_loop(
             }
             shared.frames_processed.fetch_add(1, Ordering::Relaxed);
             *lock(&shared.solver) = solver.counts;
+            let mut times = lock(&shared.solver_frame_micros);
+            if times.len() < 1 << 20 {
+                times.push(t.elapsed().as_micros() as u64);
+            }
+            drop(times);
             tracing::trace!(frame = e.meta.index, "frame processed");
             next += 1;
         }
@@ -1159,6 +1175,7 @@ fn finish(
     opts: &ServeOptions,
 ) -> Result<Finished, ServeError> {
     checkpoint.sync()?;
+    *lock(&shared.live_solver) = solver.counts;
     feed.publish(status::event_line(
         "final_solve",
         "capture stopped; final solve",

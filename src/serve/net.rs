@@ -93,13 +93,19 @@ impl NetStats {
 
     /// From a frame's capture to its points fully written to a client's socket.
     pub fn latency(&self) -> Latency {
-        let mut l = lock(&self.latencies_micros).clone();
+        Latency::of_micros(lock(&self.latencies_micros).clone())
+    }
+}
+
+impl Latency {
+    /// Percentiles of durations in microseconds.
+    pub fn of_micros(mut l: Vec<u64>) -> Self {
         if l.is_empty() {
-            return Latency::default();
+            return Self::default();
         }
         l.sort_unstable();
         let at = |q: f64| l[((l.len() - 1) as f64 * q).round() as usize] as f64 / 1000.0;
-        Latency {
+        Self {
             samples: l.len(),
             p50_ms: at(0.5),
             p95_ms: at(0.95),
