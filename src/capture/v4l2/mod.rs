@@ -86,11 +86,21 @@ impl V4l2Error {
     /// The device is missing, gone or taken: worth reopening after a pause (a camera
     /// re-enumerating on USB, a housing connector reseated). Format and capability
     /// errors are not: they will say the same next time.
+    ///
+    /// A v4l2loopback node whose writer has gone counts as missing: with
+    /// `exclusive_caps=1` it shows OUTPUT but not CAPTURE, otherwise it offers no
+    /// format, until a writer comes back.
     pub fn is_retryable(&self) -> bool {
-        matches!(
-            self,
-            V4l2Error::NotFound { .. } | V4l2Error::DeviceLost { .. } | V4l2Error::Busy { .. }
-        )
+        match self {
+            V4l2Error::NotFound { .. } | V4l2Error::DeviceLost { .. } | V4l2Error::Busy { .. } => {
+                true
+            }
+            V4l2Error::NotCapture { caps, .. } => {
+                caps & sys::V4L2_CAP_VIDEO_OUTPUT != 0 && caps & sys::V4L2_CAP_STREAMING != 0
+            }
+            V4l2Error::NoUsableFormat { offered, .. } => offered.is_empty(),
+            _ => false,
+        }
     }
 
     /// The device (or its driver) disappeared while in use.
@@ -161,6 +171,15 @@ fn output_caps_problem(caps: u32) -> String {
 
 fn fourcc_str(f: [u8; 4]) -> String {
     String::from_utf8_lossy(&f).trim_end().to_string()
+}
+
+/// The errno text of a refused ioctl, for a note.
+fn refused_reason(e: &V4l2Error) -> String {
+    match e {
+        V4l2Error::Ioctl { source, .. } => source.to_string(),
+        V4l2Error::Busy { .. } => "busy".into(),
+        other => other.to_string(),
+    }
 }
 
 /// Maps an ioctl failure: a vanished device, a busy one, or anything else.
@@ -699,11 +718,15 @@ impl Device {
                 };
                 set.parm.capture = c;
                 if let Err(e) = sys::ioctl(fd, sys::VIDIOC_S_PARM, &mut set) {
-                    match e.raw_os_error() {
-                        Some(libc::ENOTTY | libc::EINVAL) => {
-                            fallbacks.push(format!("asked for {fps} fps, the driver refused ({e})"))
-                        }
-                        _ => return Err(ioctl_error(&self.path, "VIDIOC_S_PARM", e)),
+                    // Only a vanished device is fatal: a refused rate (EINVAL, or EBUSY
+                    // from v4l2loopback while its writer owns the rate) leaves the
+                    // current one, read back below.
+                    match ioctl_error(&self.path, "VIDIOC_S_PARM", e) {
+                        lost @ V4l2Error::DeviceLost { .. } => return Err(lost),
+                        refused => fallbacks.push(format!(
+                            "asked for {fps} fps, the driver refused ({})",
+                            refused_reason(&refused)
+                        )),
                     }
                 }
             }
@@ -1287,6 +1310,12 @@ mod tests {
         let msg = err.to_string();
         assert!(msg.contains("VIDEO_OUTPUT | STREAMING"), "{msg}");
         assert!(msg.contains("exclusive_caps"), "{msg}");
+        assert!(err.is_retryable(), "a loopback node waiting for its writer");
+        let err = V4l2Error::NotCapture {
+            path: "/dev/video1".into(),
+            caps: sys::V4L2_CAP_VIDEO_M2M | sys::V4L2_CAP_STREAMING,
+        };
+        assert!(!err.is_retryable());
     }
 
     #[test]
