@@ -70,10 +70,27 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => code,
         Err(err) => {
-            eprintln!("crossline: error: {err:#}");
+            eprintln!("crossline: error: {}", error_chain(&err));
             ExitCode::FAILURE
         }
     }
+}
+
+/// `{err:#}` without repeats: the library's errors put their cause in their message
+/// and also return it as `source()`, which `{:#}` would print a second time.
+fn error_chain(err: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in err.chain() {
+        let text = cause.to_string();
+        if out.ends_with(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
 }
 
 /// A flag that SIGINT and SIGTERM raise, for loops that stop cleanly between frames.
