@@ -99,6 +99,10 @@ fn stop_on_signals() -> anyhow::Result<std::sync::Arc<std::sync::atomic::AtomicB
     use anyhow::Context;
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        // A second signal, while the first is still being honoured, ends the process
+        // (exit code 1), in case it is stuck in a blocking call.
+        signal_hook::flag::register_conditional_shutdown(signal, 1, std::sync::Arc::clone(&stop))
+            .context("installing the SIGINT/SIGTERM handler")?;
         signal_hook::flag::register(signal, std::sync::Arc::clone(&stop))
             .context("installing the SIGINT/SIGTERM handler")?;
     }

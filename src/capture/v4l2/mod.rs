@@ -46,6 +46,8 @@ pub const USABLE_FOURCCS: [[u8; 4]; 3] = [*b"MJPG", *b"YUYV", *b"RGB3"];
 pub enum V4l2Error {
     #[error("{path}: no such device (is the camera plugged in and its driver loaded?)")]
     NotFound { path: PathBuf },
+    #[error("{path}: permission denied (is this user in the `video` group?)")]
+    PermissionDenied { path: PathBuf },
     #[error("cannot open {path}: {source}")]
     Open {
         path: PathBuf,
@@ -394,6 +396,9 @@ fn open_node(path: &Path, nonblocking: bool) -> Result<File, V4l2Error> {
                 path: path.to_path_buf(),
                 op: "open",
             },
+            Some(libc::EACCES | libc::EPERM) => V4l2Error::PermissionDenied {
+                path: path.to_path_buf(),
+            },
             _ => V4l2Error::Open {
                 path: path.to_path_buf(),
                 source,
@@ -493,23 +498,32 @@ impl Device {
     /// The capture formats the device offers, each with its frame sizes and, for
     /// discrete sizes, frame intervals.
     pub fn formats(&self) -> Result<Vec<FormatInfo>, V4l2Error> {
+        self.descriptions()?
+            .into_iter()
+            .map(|desc| {
+                Ok(FormatInfo {
+                    fourcc: sys::fourcc_bytes(desc.pixelformat),
+                    description: sys::c_string(&desc.description),
+                    compressed: desc.flags & sys::V4L2_FMT_FLAG_COMPRESSED != 0,
+                    sizes: self.frame_sizes(desc.pixelformat)?,
+                })
+            })
+            .collect()
+    }
+
+    /// ENUM_FMT alone (a bound guards against drivers that never say EINVAL).
+    fn descriptions(&self) -> Result<Vec<sys::FmtDesc>, V4l2Error> {
         let fd = self.file.as_fd();
         let mut out = Vec::new();
-        for index in 0.. {
+        for index in 0..256 {
             let mut desc: sys::FmtDesc = sys::zeroed();
             desc.index = index;
             desc.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
             match sys::ioctl(fd, sys::VIDIOC_ENUM_FMT, &mut desc) {
-                Ok(()) => {}
+                Ok(()) => out.push(desc),
                 Err(e) if e.raw_os_error() == Some(libc::EINVAL) => break,
                 Err(e) => return Err(ioctl_error(&self.path, "VIDIOC_ENUM_FMT", e)),
             }
-            out.push(FormatInfo {
-                fourcc: sys::fourcc_bytes(desc.pixelformat),
-                description: sys::c_string(&desc.description),
-                compressed: desc.flags & sys::V4L2_FMT_FLAG_COMPRESSED != 0,
-                sizes: self.frame_sizes(desc.pixelformat)?,
-            });
         }
         Ok(out)
     }
@@ -600,7 +614,21 @@ impl Device {
         let path = self.path.clone();
         let mut fallbacks = Vec::new();
 
-        let offered: Vec<[u8; 4]> = self.formats()?.iter().map(|f| f.fourcc).collect();
+        // Frame sizes are the driver's to round to in S_FMT; only the fourccs matter.
+        let offered: Vec<[u8; 4]> = self
+            .descriptions()?
+            .iter()
+            .map(|d| sys::fourcc_bytes(d.pixelformat))
+            .collect();
+        tracing::debug!(
+            "{} offers {}",
+            self.path.display(),
+            offered
+                .iter()
+                .map(|f| fourcc_str(*f))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
         let Some((fourcc, note)) = choose_fourcc(&req.fourccs, &offered) else {
             return Err(V4l2Error::NoUsableFormat {
                 path,
@@ -744,12 +772,12 @@ impl Device {
             }
             return Ok((0, 0));
         }
-        if fps > 0 && (u64::from(t.denominator) != u64::from(fps) * u64::from(t.numerator)) {
+        let got_fps = t.denominator as f64 / t.numerator as f64;
+        // UVC intervals are in 100 ns units: 333333/10000000 s is 30 fps.
+        if fps > 0 && (got_fps / fps as f64 - 1.0).abs() > 1e-3 {
             fallbacks.push(format!(
-                "asked for {fps} fps, the driver runs at {:.3} fps ({}/{} s)",
-                t.denominator as f64 / t.numerator as f64,
-                t.numerator,
-                t.denominator
+                "asked for {fps} fps, the driver runs at {got_fps:.3} fps ({}/{} s)",
+                t.numerator, t.denominator
             ));
         }
         Ok((t.numerator, t.denominator))
@@ -855,6 +883,7 @@ fn renamed(e: V4l2Error, path: &Path) -> V4l2Error {
         V4l2Error::Open { source, .. } => V4l2Error::Open { path, source },
         V4l2Error::DeviceLost { op, source, .. } => V4l2Error::DeviceLost { path, op, source },
         V4l2Error::Busy { op, .. } => V4l2Error::Busy { path, op },
+        V4l2Error::PermissionDenied { .. } => V4l2Error::PermissionDenied { path },
         other => other,
     }
 }
