@@ -652,8 +652,27 @@ impl Device {
         pix.bytesperline = 0;
         pix.sizeimage = 0;
         format.fmt.pix = pix;
-        call(fd, &path, sys::VIDIOC_S_FMT, &mut format)?;
-        // SAFETY: S_FMT writes the format it set back into the `pix` member.
+        if let Err(e) = sys::ioctl(fd, sys::VIDIOC_S_FMT, &mut format) {
+            // v4l2loopback's capture side takes its format from the writer and may
+            // refuse S_FMT (EBUSY, EINVAL): stream in the current format if usable.
+            let refused = ioctl_error(&path, "VIDIOC_S_FMT", e);
+            if !matches!(&refused, V4l2Error::Busy { .. } | V4l2Error::Ioctl { .. }) {
+                return Err(refused);
+            }
+            format = sys::zeroed();
+            format.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
+            call(fd, &path, sys::VIDIOC_G_FMT, &mut format)?;
+            // SAFETY: G_FMT for a VIDEO_CAPTURE type fills the `pix` member.
+            let current = unsafe { format.fmt.pix };
+            if !USABLE_FOURCCS.contains(&sys::fourcc_bytes(current.pixelformat)) {
+                return Err(refused);
+            }
+            fallbacks.push(format!(
+                "the driver refused to set the format ({}); using its current one",
+                refused_reason(&refused)
+            ));
+        }
+        // SAFETY: S_FMT (or G_FMT) wrote the format in force into the `pix` member.
         let got = unsafe { format.fmt.pix };
         let got_fourcc = sys::fourcc_bytes(got.pixelformat);
         if got_fourcc != fourcc {
@@ -1071,9 +1090,10 @@ fn mjpeg_size_image(width: u32, height: u32) -> u32 {
 }
 
 impl OutputDevice {
-    /// Opens `path` (blocking writes), checks it is a video output node, sets the
-    /// OUTPUT format and advertises the frame rate. Keep the value alive for as long
-    /// as readers should see the format.
+    /// Opens `path` (blocking writes), sets the OUTPUT format (a node that takes none
+    /// is [`V4l2Error::NotOutput`]; a loopback already streaming another format is
+    /// [`V4l2Error::Busy`]) and advertises the frame rate. Keep the value alive for as
+    /// long as readers should see the format.
     pub fn open(path: &Path, format: &OutputFormat) -> Result<OutputDevice, V4l2Error> {
         let file = open_node(path, false)?;
         let fd = file.as_fd();
@@ -1081,12 +1101,11 @@ impl OutputDevice {
             V4l2Error::NotCapture { path, caps } => V4l2Error::NotOutput { path, caps },
             other => other,
         })?;
-        if identity.caps & sys::V4L2_CAP_VIDEO_OUTPUT == 0 {
-            return Err(V4l2Error::NotOutput {
-                path: path.to_path_buf(),
-                caps: identity.caps,
-            });
-        }
+        // v4l2loopback with exclusive_caps=1 hides OUTPUT while a reader still holds
+        // the stream of an earlier writer, yet takes a new writer of the same format:
+        // so the capability is not checked here; an OUTPUT S_FMT that the driver does
+        // not know is the refusal.
+        let advertises_output = identity.caps & sys::V4L2_CAP_VIDEO_OUTPUT != 0;
         let compressed = &format.fourcc == b"MJPG" || &format.fourcc == b"JPEG";
         let mut f: sys::Format = sys::zeroed();
         f.type_ = sys::V4L2_BUF_TYPE_VIDEO_OUTPUT;
@@ -1103,7 +1122,15 @@ impl OutputDevice {
             0
         };
         f.fmt.pix = pix;
-        call(fd, path, sys::VIDIOC_S_FMT, &mut f)?;
+        if let Err(e) = sys::ioctl(fd, sys::VIDIOC_S_FMT, &mut f) {
+            if !advertises_output && matches!(e.raw_os_error(), Some(libc::EINVAL | libc::ENOTTY)) {
+                return Err(V4l2Error::NotOutput {
+                    path: path.to_path_buf(),
+                    caps: identity.caps,
+                });
+            }
+            return Err(ioctl_error(path, "VIDIOC_S_FMT", e));
+        }
         // SAFETY: S_FMT for a VIDEO_OUTPUT type writes back the `pix` member.
         let got = unsafe { f.fmt.pix };
         if (got.width, got.height, got.pixelformat) != (pix.width, pix.height, pix.pixelformat) {
