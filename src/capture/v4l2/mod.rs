@@ -929,7 +929,6 @@ pub struct Stream {
 /// One dequeued buffer. It borrows the [`Stream`], so it must be dropped (or its
 /// bytes copied) before the next [`Stream::next_frame`], which hands the buffer back
 /// to the driver.
-#[derive(Debug)]
 pub struct Frame<'a> {
     /// The driver's frame counter; a jump of more than one means the driver dropped
     /// frames (usually because every buffer was held by us).
@@ -942,6 +941,18 @@ pub struct Frame<'a> {
     pub flags: u32,
     /// The payload (`bytesused` bytes of the buffer).
     pub bytes: &'a [u8],
+}
+
+impl fmt::Debug for Frame<'_> {
+    /// The payload's length, not its megabytes.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Frame")
+            .field("sequence", &self.sequence)
+            .field("timestamp_nanos", &self.timestamp_nanos)
+            .field("flags", &format_args!("{:#x}", self.flags))
+            .field("bytes", &self.bytes.len())
+            .finish()
+    }
 }
 
 impl Frame<'_> {
@@ -959,6 +970,11 @@ impl Frame<'_> {
 impl Stream {
     pub fn negotiated(&self) -> &Negotiated {
         &self.negotiated
+    }
+
+    /// The path as given to [`Device::open`].
+    pub fn path(&self) -> &Path {
+        &self.path
     }
 
     /// How many buffers the driver granted.
