@@ -135,7 +135,8 @@ impl Tally {
         }
         s.push_str(&format!("; {} frames dropped by the driver", self.dropped));
         if self.gaps > 0 {
-            s.push_str(&format!(" (in {} gaps)", self.gaps));
+            let plural = if self.gaps == 1 { "" } else { "s" };
+            s.push_str(&format!(" (in {} gap{plural})", self.gaps));
         }
         if self.damaged > 0 {
             s.push_str(&format!(

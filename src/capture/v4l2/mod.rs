@@ -340,13 +340,19 @@ pub fn choose_fourcc(
     }
     let f = USABLE_FOURCCS.iter().find(|f| offered.contains(f))?;
     let asked: Vec<String> = requested.iter().map(|f| fourcc_str(*f)).collect();
-    let has: Vec<String> = offered.iter().map(|f| fourcc_str(*f)).collect();
+    // vivid offers some 90 formats: name the ones crossline reads, count the rest.
+    let readable: Vec<String> = USABLE_FOURCCS
+        .iter()
+        .filter(|f| offered.contains(f))
+        .map(|f| fourcc_str(*f))
+        .collect();
     Some((
         *f,
         Some(format!(
-            "asked for {}, the device offers {}: using {}",
+            "asked for {}, which the device does not offer (of the {} formats it offers, crossline reads {}): using {}",
             list_or_none(&asked),
-            list_or_none(&has),
+            offered.len(),
+            readable.join(", "),
             fourcc_str(*f)
         )),
     ))
@@ -761,9 +767,12 @@ impl Device {
         let capture = unsafe { parm.parm.capture };
         if fps > 0 {
             if capture.capability & sys::V4L2_CAP_TIMEPERFRAME == 0 {
-                fallbacks.push(format!(
-                    "asked for {fps} fps, the driver does not let the frame rate be set"
-                ));
+                // Not settable (v4l2loopback: the writer sets it); the read-back below
+                // says whether that matters.
+                tracing::debug!(
+                    "{}: the driver does not let the frame rate be set",
+                    self.path.display()
+                );
             } else {
                 let mut set: sys::StreamParm = sys::zeroed();
                 set.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
@@ -1355,7 +1364,8 @@ mod tests {
         assert_eq!(&f, b"RGB3");
         let note = note.expect("a note");
         assert!(
-            note.contains("asked for MJPG") && note.contains("NV12, RGB3"),
+            note.contains("asked for MJPG")
+                && note.contains("of the 2 formats it offers, crossline reads RGB3"),
             "{note}"
         );
         assert_eq!(choose_fourcc(&[*b"MJPG"], &[*b"NV12", *b"H264"]), None);
