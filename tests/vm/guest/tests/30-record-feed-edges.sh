@@ -1,8 +1,8 @@
 # shellcheck shell=sh
 # The edges of record and feed that only real drivers show: Ctrl-C, a busy camera,
-# a v4l2loopback node without its writer, feeding the same node twice (v4l2loopback
-# 0.12.7 hides OUTPUT after a write()-only writer unless it called STREAMON), a feeder
-# that vanishes for a while and one that stops for good.
+# an unplugged one, a v4l2loopback node without its writer, feeding the same node
+# twice (v4l2loopback 0.12.7 hides OUTPUT after a write()-only writer unless it
+# called STREAMON), a feeder that vanishes for a while and one that stops for good.
 . /vm/lib.sh
 load_module vivid n_devs=1 node_types=0x1
 wait_for_dev /dev/video0
@@ -34,6 +34,23 @@ wait $p || first=$?
 [ $rc -eq 1 ] || fail "the second record exited $rc, expected 1"
 grep -q 'is busy' "$RESULTS/second.stderr" || fail "the second record did not say the camera is busy"
 [ $first -eq 0 ] || fail "the first record exited $first"
+
+echo "+ the camera is unplugged while record runs (vivid's Disconnect control)"
+crossline record --device /dev/video0 --format yuyv --size 320x180 --fps 30 \
+    --out "$RESULTS/unplug.dump" 2>"$RESULTS/unplug.stderr" &
+p=$!
+sleep 2
+run "$DATA/vivid-disconnect" /dev/video0
+rc=0
+wait $p || rc=$?
+cat "$RESULTS/unplug.stderr"
+[ $rc -eq 1 ] || fail "record from an unplugged camera exited $rc, expected 1"
+grep -q 'camera lost' "$RESULTS/unplug.stderr" || fail "record did not say the camera was lost"
+grep -q '/dev/video0 went away' "$RESULTS/unplug.stderr" || fail "record did not name the lost device"
+[ "$(wc -c <"$RESULTS/unplug.dump")" -gt 100000 ] || fail "the frames before the unplug are not in the dump"
+echo "+ and plugged back in: once every handle is closed, vivid reconnects"
+run crossline record --device /dev/video0 --format yuyv --size 320x180 --frames 3 \
+    --out "$RESULTS/replug.dump"
 rmmod vivid
 
 load_module v4l2loopback video_nr=10 exclusive_caps=1 card_label=crossline-loop
