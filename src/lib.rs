@@ -13,8 +13,8 @@
 //! The modules follow the data:
 //! - [`camera`]: intrinsics, OpenCV distortion, point undistortion.
 //! - [`camera_file`]: OpenCV `FileStorage` YAML, ROS `camera_info` and TOML readers/writers.
-//! - [`capture`]: frame sources (V4L2 cameras, replays) and the dump format of recorded
-//!   camera buffers.
+//! - [`capture`]: frame sources (V4L2 cameras through our own ioctl layer, replays), the
+//!   dump format of recorded camera buffers, v4l2loopback output.
 //! - [`ring`]: preallocated frame slots between the capture thread and the workers.
 //! - [`simulate`]: analytic scenes, the hand-held projector, image formation, ground truth.
 //! - [`extract`]: background model, Steger ridge detector, colour classes, linking.

@@ -2,12 +2,20 @@
 //!
 //! - [`dump`]: the recording format of raw camera buffers (versioned, documented there).
 //! - [`replay`]: a recorded dump played back as if it were a camera.
+//! - [`v4l2`] (Linux): capture from V4L2 cameras through our own ioctl layer, and
+//!   writing frames into a v4l2loopback device.
+//! - [`live`] (Linux): a V4L2 camera as a [`FrameSource`], reopened with back-off when
+//!   it disappears.
 //!
 //! Every source implements [`FrameSource`], so the daemon runs the identical pipeline
 //! on a live camera and on a replay.
 
 pub mod dump;
+#[cfg(target_os = "linux")]
+pub mod live;
 pub mod replay;
+#[cfg(target_os = "linux")]
+pub mod v4l2;
 
 use std::time::Duration;
 

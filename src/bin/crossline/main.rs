@@ -10,7 +10,11 @@ mod compare;
 mod demo;
 mod device;
 mod extract;
+#[cfg(target_os = "linux")]
+mod feed;
 mod reconstruct;
+#[cfg(target_os = "linux")]
+mod record;
 mod serve;
 mod simulate;
 mod status;
@@ -25,6 +29,11 @@ mod tail;
 ///   crossline simulate --scene room --frames 200 --out sim
 ///   crossline reconstruct --input sim --camera sim/camera.yml --out cloud.ply
 ///   crossline compare cloud.ply --truth sim
+///
+/// With a camera (Linux, V4L2):
+///
+///   crossline record --device /dev/video0 --out dive.dump --seconds 60
+///   crossline feed --device /dev/video10 --input dive.dump --loop
 #[derive(Parser)]
 #[command(name = "crossline", version, about, long_about, verbatim_doc_comment)]
 struct Cli {
@@ -45,6 +54,10 @@ enum Command {
     Serve(serve::Args),
     Status(status::Args),
     Tail(tail::Args),
+    #[cfg(target_os = "linux")]
+    Record(record::Args),
+    #[cfg(target_os = "linux")]
+    Feed(feed::Args),
 }
 
 fn main() -> ExitCode {
@@ -59,14 +72,51 @@ fn main() -> ExitCode {
         Command::Serve(args) => serve::run(args),
         Command::Status(args) => status::run(args),
         Command::Tail(args) => tail::run(args),
+        #[cfg(target_os = "linux")]
+        Command::Record(args) => record::run(args),
+        #[cfg(target_os = "linux")]
+        Command::Feed(args) => feed::run(args),
     };
     match result {
         Ok(code) => code,
         Err(err) => {
-            eprintln!("crossline: error: {err:#}");
+            eprintln!("crossline: error: {}", error_chain(&err));
             ExitCode::FAILURE
         }
     }
+}
+
+/// `{err:#}` without repeats: the library's errors put their cause in their message
+/// and also return it as `source()`, which `{:#}` would print a second time.
+fn error_chain(err: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in err.chain() {
+        let text = cause.to_string();
+        if out.ends_with(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
+}
+
+/// A flag that SIGINT and SIGTERM raise, for loops that stop cleanly between frames.
+#[cfg(target_os = "linux")]
+fn stop_on_signals() -> anyhow::Result<std::sync::Arc<std::sync::atomic::AtomicBool>> {
+    use anyhow::Context;
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        // A second signal, while the first is still being honoured, ends the process
+        // (exit code 1), in case it is stuck in a blocking call.
+        signal_hook::flag::register_conditional_shutdown(signal, 1, std::sync::Arc::clone(&stop))
+            .context("installing the SIGINT/SIGTERM handler")?;
+        signal_hook::flag::register(signal, std::sync::Arc::clone(&stop))
+            .context("installing the SIGINT/SIGTERM handler")?;
+    }
+    Ok(stop)
 }
 
 fn init_logging(verbose: u8) {
