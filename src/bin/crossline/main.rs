@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand};
 mod compare;
 mod demo;
 mod extract;
+mod inspect;
 mod reconstruct;
 mod simulate;
 
@@ -38,6 +39,7 @@ enum Command {
     Compare(compare::Args),
     Extract(extract::Args),
     Reconstruct(reconstruct::Args),
+    Inspect(inspect::Args),
 }
 
 fn main() -> ExitCode {
@@ -49,6 +51,7 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare::run(args),
         Command::Extract(args) => extract::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),
+        Command::Inspect(args) => inspect::run(args),
     };
     match result {
         Ok(code) => code,
