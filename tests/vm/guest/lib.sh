@@ -22,3 +22,15 @@ run() {
     echo "+ $*"
     "$@" || fail "exit status $?: $*"
 }
+
+# Loads kernel module $1 with the parameters that follow, unloading it first if an
+# earlier test left it loaded with other parameters.
+load_module() {
+    m=$1
+    shift
+    if [ -d "/sys/module/$m" ]; then
+        rmmod "$m" || fail "cannot unload $m (still in use?)"
+    fi
+    echo "+ modprobe $m $*"
+    modprobe "$m" "$@" || fail "modprobe $m $* failed"
+}
