@@ -13,7 +13,7 @@
 //! The modules follow the data:
 //! - [`camera`]: intrinsics, OpenCV distortion, point undistortion.
 //! - [`camera_file`]: OpenCV `FileStorage` YAML, ROS `camera_info` and TOML readers/writers.
-//! - [`capture`]: the dump format of recorded camera buffers.
+//! - [`capture`]: the dump format of recorded camera buffers; V4L2 capture and output.
 //! - [`simulate`]: analytic scenes, the hand-held projector, image formation, ground truth.
 //! - [`extract`]: background model, Steger ridge detector, colour classes, linking.
 //! - [`intersect`]: spatial index over curve segments, crossing points.

@@ -521,3 +521,63 @@ fn inspect_lists_a_dump_and_says_where_a_cut_one_stops() {
         ("corrupt".into(), 1.into())
     );
 }
+
+/// What `record` and `feed` can show without a camera or v4l2loopback: every refusal
+/// names the path and exits 1. Real devices are exercised in the VM harness.
+#[cfg(target_os = "linux")]
+#[test]
+fn record_and_feed_refuse_what_is_not_a_video_device() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let out = tmp.path().join("out.dump");
+    let err = stderr_of_failure(
+        crossline()
+            .args(["record", "--device", "/dev/null", "--out"])
+            .arg(&out),
+    );
+    assert!(
+        err.contains("/dev/null is not a V4L2 capture device"),
+        "{err}"
+    );
+    assert!(!out.exists(), "no dump without a camera");
+    let missing = tmp.path().join("video7");
+    let err = stderr_of_failure(
+        crossline()
+            .args(["record", "--frames", "3", "--device"])
+            .arg(&missing)
+            .arg("--out")
+            .arg(&out),
+    );
+    assert!(err.contains("no such device"), "{err}");
+    assert!(err.contains(&missing.display().to_string()), "{err}");
+
+    // A valid dump into something that is not a v4l2loopback node.
+    let dump = tmp.path().join("in.dump");
+    let header = crossline::capture::dump::DumpHeader {
+        fourcc: *b"YUYV",
+        width: 4,
+        height: 2,
+        bytes_per_line: 8,
+        interval_num: 1,
+        interval_den: 30,
+        device: "/dev/video0".into(),
+        card: "test".into(),
+    };
+    let mut w = crossline::capture::dump::DumpWriter::create(&dump, &header).expect("create");
+    w.write_frame(0, 0, 0, &[128; 16]).expect("write");
+    w.finish().expect("finish");
+    let err = stderr_of_failure(
+        crossline()
+            .args(["feed", "--device", "/dev/null", "--input"])
+            .arg(&dump),
+    );
+    assert!(
+        err.contains("/dev/null is not a V4L2 output device"),
+        "{err}"
+    );
+    let err = stderr_of_failure(
+        crossline()
+            .args(["feed", "--device", "/dev/null", "--input"])
+            .arg(tmp.path().join("none.dump")),
+    );
+    assert!(err.contains("none.dump"), "{err}");
+}

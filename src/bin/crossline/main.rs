@@ -9,8 +9,12 @@ use clap::{Parser, Subcommand};
 mod compare;
 mod demo;
 mod extract;
+#[cfg(target_os = "linux")]
+mod feed;
 mod inspect;
 mod reconstruct;
+#[cfg(target_os = "linux")]
+mod record;
 mod simulate;
 
 /// Turn a fixed camera and a hand-held cross line laser into a 3D scanner, with no
@@ -22,6 +26,11 @@ mod simulate;
 ///   crossline simulate --scene room --frames 200 --out sim
 ///   crossline reconstruct --input sim --camera sim/camera.yml --out cloud.ply
 ///   crossline compare cloud.ply --truth sim
+///
+/// With a camera (Linux, V4L2):
+///
+///   crossline record --device /dev/video0 --out dive.dump --seconds 60
+///   crossline feed --device /dev/video10 --input dive.dump --loop
 #[derive(Parser)]
 #[command(name = "crossline", version, about, long_about, verbatim_doc_comment)]
 struct Cli {
@@ -40,6 +49,10 @@ enum Command {
     Extract(extract::Args),
     Reconstruct(reconstruct::Args),
     Inspect(inspect::Args),
+    #[cfg(target_os = "linux")]
+    Record(record::Args),
+    #[cfg(target_os = "linux")]
+    Feed(feed::Args),
 }
 
 fn main() -> ExitCode {
@@ -52,6 +65,10 @@ fn main() -> ExitCode {
         Command::Extract(args) => extract::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),
         Command::Inspect(args) => inspect::run(args),
+        #[cfg(target_os = "linux")]
+        Command::Record(args) => record::run(args),
+        #[cfg(target_os = "linux")]
+        Command::Feed(args) => feed::run(args),
     };
     match result {
         Ok(code) => code,
@@ -60,6 +77,18 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// A flag that SIGINT and SIGTERM raise, for loops that stop cleanly between frames.
+#[cfg(target_os = "linux")]
+fn stop_on_signals() -> anyhow::Result<std::sync::Arc<std::sync::atomic::AtomicBool>> {
+    use anyhow::Context;
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, std::sync::Arc::clone(&stop))
+            .context("installing the SIGINT/SIGTERM handler")?;
+    }
+    Ok(stop)
 }
 
 fn init_logging(verbose: u8) {

@@ -1,0 +1,1331 @@
+//! Video4Linux2 capture (and v4l2loopback output) through our own small ioctl layer.
+//!
+//! Why not the `v4l` crate or bindgen: both generate the kernel structs at build time
+//! with libclang, and our build machines (and the boat's) do not carry libclang. The
+//! handful of structs crossline needs are written out in [`sys`], mirroring
+//! `include/uapi/linux/videodev2.h`; unit tests pin their sizes, offsets and the
+//! ioctl request numbers to the x86_64 ABI, so a layout slip fails `cargo test`
+//! rather than returning `ENOTTY` on a camera.
+//!
+//! This module owns the device file descriptor, the format negotiation and the
+//! memory-mapped buffer queue. It does not own threads, ring buffers or retries: the
+//! daemon reopens the device when [`V4l2Error::is_retryable`] says so.
+//!
+//! # Capture
+//! [`Device::open`] → [`Device::negotiate`] → [`Device::start`] → [`Stream::next_frame`]
+//! in a loop. A [`Frame`] borrows the [`Stream`]: its bytes are the driver's buffer
+//! itself, with no copy, and that buffer goes back to the driver at the next call of
+//! `next_frame` (or when the stream is dropped). Dropping the stream turns streaming
+//! off, unmaps the buffers and closes the device, on every path.
+//!
+//! # Output (v4l2loopback)
+//! [`OutputDevice`] sets the OUTPUT format and writes each frame with `write(2)` on the
+//! same file descriptor: v4l2loopback forgets the format when its last writer closes,
+//! a reader's `G_FMT` fails until the first frame is written, and with
+//! `exclusive_caps=1` the node advertises CAPTURE only while a writer holds it open.
+
+#![allow(unsafe_code)] // The kernel ABI: ioctl, poll, mmap. Each block says why it is sound.
+
+pub mod sys;
+
+use std::fmt;
+use std::fs::{File, OpenOptions};
+use std::io::{self, Write};
+use std::os::fd::{AsFd, BorrowedFd};
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use crate::capture::dump::DumpHeader;
+use sys::{Fract, Readiness};
+
+/// The pixel formats crossline can record and decode, in the order it falls back to.
+pub const USABLE_FOURCCS: [[u8; 4]; 3] = [*b"MJPG", *b"YUYV", *b"RGB3"];
+
+#[derive(Debug, thiserror::Error)]
+pub enum V4l2Error {
+    #[error("{path}: no such device (is the camera plugged in and its driver loaded?)")]
+    NotFound { path: PathBuf },
+    #[error("cannot open {path}: {source}")]
+    Open {
+        path: PathBuf,
+        #[source]
+        source: io::Error,
+    },
+    #[error("{path} is not a V4L2 capture device: {}", capture_caps_problem(*.caps))]
+    NotCapture { path: PathBuf, caps: u32 },
+    #[error("{path} is not a V4L2 output device: {}", output_caps_problem(*.caps))]
+    NotOutput { path: PathBuf, caps: u32 },
+    #[error("{path} offers none of the pixel formats crossline reads (MJPG, YUYV, RGB3); it offers {}", list_or_none(.offered))]
+    NoUsableFormat { path: PathBuf, offered: Vec<String> },
+    #[error("{path} is busy ({op}): another program is using it")]
+    Busy { path: PathBuf, op: &'static str },
+    #[error("{path} went away ({op}): {source}")]
+    DeviceLost {
+        path: PathBuf,
+        op: &'static str,
+        #[source]
+        source: io::Error,
+    },
+    #[error("{path}: {op} failed: {source}")]
+    Ioctl {
+        path: PathBuf,
+        op: &'static str,
+        #[source]
+        source: io::Error,
+    },
+    #[error("{path}: frame of {len} bytes does not fit the output buffer of {size_image} bytes")]
+    FrameTooLarge {
+        path: PathBuf,
+        len: usize,
+        size_image: u32,
+    },
+}
+
+impl V4l2Error {
+    /// The device is missing, gone or taken: worth reopening after a pause (a camera
+    /// re-enumerating on USB, a housing connector reseated). Format and capability
+    /// errors are not: they will say the same next time.
+    pub fn is_retryable(&self) -> bool {
+        matches!(
+            self,
+            V4l2Error::NotFound { .. } | V4l2Error::DeviceLost { .. } | V4l2Error::Busy { .. }
+        )
+    }
+
+    /// The device (or its driver) disappeared while in use.
+    pub fn is_device_lost(&self) -> bool {
+        matches!(self, V4l2Error::DeviceLost { .. })
+    }
+}
+
+fn list_or_none(v: &[String]) -> String {
+    if v.is_empty() {
+        "nothing".into()
+    } else {
+        v.join(", ")
+    }
+}
+
+/// Names of the capability bits crossline cares about.
+pub fn caps_names(caps: u32) -> String {
+    const NAMES: [(u32, &str); 8] = [
+        (sys::V4L2_CAP_VIDEO_CAPTURE, "VIDEO_CAPTURE"),
+        (sys::V4L2_CAP_VIDEO_OUTPUT, "VIDEO_OUTPUT"),
+        (sys::V4L2_CAP_VIDEO_CAPTURE_MPLANE, "VIDEO_CAPTURE_MPLANE"),
+        (sys::V4L2_CAP_VIDEO_OUTPUT_MPLANE, "VIDEO_OUTPUT_MPLANE"),
+        (sys::V4L2_CAP_VIDEO_M2M, "VIDEO_M2M"),
+        (sys::V4L2_CAP_META_CAPTURE, "META_CAPTURE"),
+        (sys::V4L2_CAP_READWRITE, "READWRITE"),
+        (sys::V4L2_CAP_STREAMING, "STREAMING"),
+    ];
+    let names: Vec<&str> = NAMES
+        .iter()
+        .filter(|(bit, _)| caps & bit != 0)
+        .map(|(_, n)| *n)
+        .collect();
+    if names.is_empty() {
+        format!("{caps:#010x}")
+    } else {
+        names.join(" | ")
+    }
+}
+
+fn capture_caps_problem(caps: u32) -> String {
+    if caps == 0 {
+        return "it does not answer VIDIOC_QUERYCAP".into();
+    }
+    let mut s = format!(
+        "it offers {}; crossline needs VIDEO_CAPTURE with STREAMING",
+        caps_names(caps)
+    );
+    if caps & sys::V4L2_CAP_VIDEO_CAPTURE_MPLANE != 0 {
+        s.push_str(" (multi-planar capture is not supported)");
+    }
+    if caps & sys::V4L2_CAP_VIDEO_OUTPUT != 0 {
+        s.push_str(" (a v4l2loopback node with exclusive_caps=1 shows CAPTURE only while a writer is attached)");
+    }
+    s
+}
+
+fn output_caps_problem(caps: u32) -> String {
+    if caps == 0 {
+        "it does not answer VIDIOC_QUERYCAP".into()
+    } else {
+        format!(
+            "it offers {}; feeding needs VIDEO_OUTPUT (a v4l2loopback node)",
+            caps_names(caps)
+        )
+    }
+}
+
+fn fourcc_str(f: [u8; 4]) -> String {
+    String::from_utf8_lossy(&f).trim_end().to_string()
+}
+
+/// Maps an ioctl failure: a vanished device, a busy one, or anything else.
+fn ioctl_error(path: &Path, op: &'static str, source: io::Error) -> V4l2Error {
+    let path = path.to_path_buf();
+    match source.raw_os_error() {
+        Some(libc::ENODEV | libc::EIO | libc::ENXIO | libc::ESHUTDOWN) => {
+            V4l2Error::DeviceLost { path, op, source }
+        }
+        Some(libc::EBUSY) => V4l2Error::Busy { path, op },
+        _ => V4l2Error::Ioctl { path, op, source },
+    }
+}
+
+/// `ioctl` with the error mapped and named after the request.
+fn call<T: sys::Pod>(
+    fd: BorrowedFd<'_>,
+    path: &Path,
+    request: sys::Request<T>,
+    arg: &mut T,
+) -> Result<(), V4l2Error> {
+    sys::ioctl(fd, request, arg).map_err(|e| ioctl_error(path, request.name, e))
+}
+
+/// What the caller would like; the device decides. See [`Device::negotiate`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FormatRequest {
+    /// Pixel formats in order of preference, e.g. `[*b"MJPG", *b"YUYV"]`.
+    pub fourccs: Vec<[u8; 4]>,
+    /// 0 keeps the device's current size.
+    pub width: u32,
+    pub height: u32,
+    /// Frames per second; 0 keeps the device's current rate.
+    pub fps: u32,
+}
+
+/// The stream the driver agreed to.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Negotiated {
+    pub fourcc: [u8; 4],
+    pub width: u32,
+    pub height: u32,
+    /// 0 for compressed formats.
+    pub bytes_per_line: u32,
+    /// Largest buffer the driver will fill, in bytes.
+    pub size_image: u32,
+    /// Seconds per frame, as a fraction; 0/0 when the driver does not say.
+    pub interval_num: u32,
+    pub interval_den: u32,
+    pub driver: String,
+    pub card: String,
+    pub bus_info: String,
+    /// The path as given (e.g. a `/dev/v4l/by-id/` link), for messages and reopening.
+    pub device: String,
+    /// The device node it resolved to (e.g. `/dev/video2`).
+    pub node: PathBuf,
+    /// What differs from the request, one human-readable note each.
+    pub fallbacks: Vec<String>,
+}
+
+impl Negotiated {
+    pub fn dump_header(&self) -> DumpHeader {
+        DumpHeader {
+            fourcc: self.fourcc,
+            width: self.width,
+            height: self.height,
+            bytes_per_line: self.bytes_per_line,
+            interval_num: self.interval_num,
+            interval_den: self.interval_den,
+            device: self.device.clone(),
+            card: self.card.clone(),
+        }
+    }
+
+    /// Frames per second, if the driver reported an interval.
+    pub fn fps(&self) -> Option<f64> {
+        (self.interval_num > 0 && self.interval_den > 0)
+            .then(|| self.interval_den as f64 / self.interval_num as f64)
+    }
+}
+
+impl fmt::Display for Negotiated {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{} {}x{}",
+            fourcc_str(self.fourcc),
+            self.width,
+            self.height
+        )?;
+        if self.bytes_per_line > 0 {
+            write!(f, " ({} bytes per line)", self.bytes_per_line)?;
+        }
+        match self.fps() {
+            Some(fps) => write!(
+                f,
+                " at {fps:.3} fps ({}/{} s)",
+                self.interval_num, self.interval_den
+            )?,
+            None => write!(f, " at an unreported frame rate")?,
+        }
+        write!(
+            f,
+            " from {} ({}, driver {}, {})",
+            self.device, self.card, self.driver, self.bus_info
+        )
+    }
+}
+
+/// One frame size a format offers, with its frame intervals when the size is discrete.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum FrameSize {
+    Discrete {
+        width: u32,
+        height: u32,
+        /// Seconds per frame as (numerator, denominator); empty if not enumerable.
+        intervals: Vec<(u32, u32)>,
+    },
+    /// Continuous sizes are stepwise with steps of 1.
+    Stepwise {
+        min_width: u32,
+        max_width: u32,
+        step_width: u32,
+        min_height: u32,
+        max_height: u32,
+        step_height: u32,
+    },
+}
+
+/// A pixel format the device offers for capture.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FormatInfo {
+    pub fourcc: [u8; 4],
+    pub description: String,
+    pub compressed: bool,
+    pub sizes: Vec<FrameSize>,
+}
+
+/// Which fourcc to ask for: the first requested one the device offers, else the first
+/// of [`USABLE_FOURCCS`] it offers with a note saying so, else `None`.
+pub fn choose_fourcc(
+    requested: &[[u8; 4]],
+    offered: &[[u8; 4]],
+) -> Option<([u8; 4], Option<String>)> {
+    if let Some(f) = requested.iter().find(|f| offered.contains(f)) {
+        return Some((*f, None));
+    }
+    let f = USABLE_FOURCCS.iter().find(|f| offered.contains(f))?;
+    let asked: Vec<String> = requested.iter().map(|f| fourcc_str(*f)).collect();
+    let has: Vec<String> = offered.iter().map(|f| fourcc_str(*f)).collect();
+    Some((
+        *f,
+        Some(format!(
+            "asked for {}, the device offers {}: using {}",
+            list_or_none(&asked),
+            list_or_none(&has),
+            fourcc_str(*f)
+        )),
+    ))
+}
+
+/// `1/fps` as a V4L2 fraction, in thousandths of a frame per second so that 29.97
+/// becomes 1000/29970 (reduced: 100/2997).
+pub fn interval_from_fps(fps: f64) -> Option<(u32, u32)> {
+    if !(fps.is_finite() && fps > 0.0 && fps < 1e6) {
+        return None;
+    }
+    let den = (fps * 1000.0).round() as u64;
+    if den == 0 {
+        return None;
+    }
+    let num = 1000u64;
+    let g = gcd(num, den);
+    Some(((num / g) as u32, (den / g) as u32))
+}
+
+fn gcd(mut a: u64, mut b: u64) -> u64 {
+    while b != 0 {
+        (a, b) = (b, a % b);
+    }
+    a
+}
+
+/// A `timeval` as nanoseconds; negative times (which no driver sends) become 0.
+pub fn nanos_from_timeval(tv: libc::timeval) -> u64 {
+    let secs = u64::try_from(tv.tv_sec).unwrap_or(0);
+    let micros = u64::try_from(tv.tv_usec).unwrap_or(0);
+    secs.saturating_mul(1_000_000_000)
+        .saturating_add(micros.saturating_mul(1000))
+}
+
+/// Opens `path` read-write and non-blocking (`O_CLOEXEC` is std's default), with the
+/// errors a user can act on.
+fn open_node(path: &Path, nonblocking: bool) -> Result<File, V4l2Error> {
+    let mut options = OpenOptions::new();
+    options.read(true).write(true);
+    if nonblocking {
+        options.custom_flags(libc::O_NONBLOCK);
+    }
+    options
+        .open(path)
+        .map_err(|source| match source.raw_os_error() {
+            Some(libc::ENOENT) => V4l2Error::NotFound {
+                path: path.to_path_buf(),
+            },
+            Some(libc::ENODEV | libc::ENXIO) => V4l2Error::DeviceLost {
+                path: path.to_path_buf(),
+                op: "open",
+                source,
+            },
+            Some(libc::EBUSY) => V4l2Error::Busy {
+                path: path.to_path_buf(),
+                op: "open",
+            },
+            _ => V4l2Error::Open {
+                path: path.to_path_buf(),
+                source,
+            },
+        })
+}
+
+struct Identity {
+    driver: String,
+    card: String,
+    bus_info: String,
+    /// The caps of this node (`device_caps` when the driver fills it).
+    caps: u32,
+}
+
+fn query_identity(fd: BorrowedFd<'_>, path: &Path) -> Result<Identity, V4l2Error> {
+    let mut cap: sys::Capability = sys::zeroed();
+    match sys::ioctl(fd, sys::VIDIOC_QUERYCAP, &mut cap) {
+        Ok(()) => {}
+        // ENOTTY: not a V4L2 node at all (a tty, /dev/null, a file). EINVAL: old
+        // kernels' answer to an unknown ioctl.
+        Err(e) if matches!(e.raw_os_error(), Some(libc::ENOTTY | libc::EINVAL)) => {
+            return Err(V4l2Error::NotCapture {
+                path: path.to_path_buf(),
+                caps: 0,
+            })
+        }
+        Err(e) => return Err(ioctl_error(path, "VIDIOC_QUERYCAP", e)),
+    }
+    let caps = if cap.capabilities & sys::V4L2_CAP_DEVICE_CAPS != 0 {
+        cap.device_caps
+    } else {
+        cap.capabilities
+    };
+    Ok(Identity {
+        driver: sys::c_string(&cap.driver),
+        card: sys::c_string(&cap.card),
+        bus_info: sys::c_string(&cap.bus_info),
+        caps,
+    })
+}
+
+/// An open V4L2 capture device, not yet streaming.
+pub struct Device {
+    file: File,
+    path: PathBuf,
+    node: PathBuf,
+    identity: Identity,
+    negotiated: Option<Negotiated>,
+}
+
+impl Device {
+    /// Opens a capture node: `/dev/videoN` or a `/dev/v4l/by-id/…` link (resolved for
+    /// the log; messages and [`Negotiated::device`] keep the name given). It must
+    /// offer single-planar video capture with streaming I/O.
+    pub fn open(path: &Path) -> Result<Device, V4l2Error> {
+        let node = std::fs::canonicalize(path).map_err(|source| match source.kind() {
+            io::ErrorKind::NotFound => V4l2Error::NotFound {
+                path: path.to_path_buf(),
+            },
+            _ => V4l2Error::Open {
+                path: path.to_path_buf(),
+                source,
+            },
+        })?;
+        let file = open_node(&node, true).map_err(|e| renamed(e, path))?;
+        let identity = query_identity(file.as_fd(), path)?;
+        let need = sys::V4L2_CAP_VIDEO_CAPTURE | sys::V4L2_CAP_STREAMING;
+        if identity.caps & need != need {
+            return Err(V4l2Error::NotCapture {
+                path: path.to_path_buf(),
+                caps: identity.caps,
+            });
+        }
+        tracing::info!(
+            "opened {} ({}): {}, driver {}, {}",
+            path.display(),
+            node.display(),
+            identity.card,
+            identity.driver,
+            identity.bus_info
+        );
+        Ok(Device {
+            file,
+            path: path.to_path_buf(),
+            node,
+            identity,
+            negotiated: None,
+        })
+    }
+
+    /// The path as given to [`Device::open`].
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The capture formats the device offers, each with its frame sizes and, for
+    /// discrete sizes, frame intervals.
+    pub fn formats(&self) -> Result<Vec<FormatInfo>, V4l2Error> {
+        let fd = self.file.as_fd();
+        let mut out = Vec::new();
+        for index in 0.. {
+            let mut desc: sys::FmtDesc = sys::zeroed();
+            desc.index = index;
+            desc.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
+            match sys::ioctl(fd, sys::VIDIOC_ENUM_FMT, &mut desc) {
+                Ok(()) => {}
+                Err(e) if e.raw_os_error() == Some(libc::EINVAL) => break,
+                Err(e) => return Err(ioctl_error(&self.path, "VIDIOC_ENUM_FMT", e)),
+            }
+            out.push(FormatInfo {
+                fourcc: sys::fourcc_bytes(desc.pixelformat),
+                description: sys::c_string(&desc.description),
+                compressed: desc.flags & sys::V4L2_FMT_FLAG_COMPRESSED != 0,
+                sizes: self.frame_sizes(desc.pixelformat)?,
+            });
+        }
+        Ok(out)
+    }
+
+    fn frame_sizes(&self, pixelformat: u32) -> Result<Vec<FrameSize>, V4l2Error> {
+        let fd = self.file.as_fd();
+        let mut sizes = Vec::new();
+        // A bound against drivers that never say EINVAL.
+        for index in 0..256 {
+            let mut e: sys::FrmSizeEnum = sys::zeroed();
+            e.index = index;
+            e.pixel_format = pixelformat;
+            match sys::ioctl(fd, sys::VIDIOC_ENUM_FRAMESIZES, &mut e) {
+                Ok(()) => {}
+                // EINVAL ends the list; ENOTTY: the driver does not enumerate sizes.
+                Err(err) if matches!(err.raw_os_error(), Some(libc::EINVAL | libc::ENOTTY)) => {
+                    break
+                }
+                Err(err) => return Err(ioctl_error(&self.path, "VIDIOC_ENUM_FRAMESIZES", err)),
+            }
+            match e.type_ {
+                sys::V4L2_FRMSIZE_TYPE_DISCRETE => {
+                    // SAFETY: the driver filled the `discrete` member, as `type_` says;
+                    // both members are Pod anyway.
+                    let d = unsafe { e.size.discrete };
+                    sizes.push(FrameSize::Discrete {
+                        width: d.width,
+                        height: d.height,
+                        intervals: self.intervals(pixelformat, d.width, d.height)?,
+                    });
+                }
+                sys::V4L2_FRMSIZE_TYPE_CONTINUOUS | sys::V4L2_FRMSIZE_TYPE_STEPWISE => {
+                    // SAFETY: the driver filled the `stepwise` member, as `type_` says.
+                    let s = unsafe { e.size.stepwise };
+                    sizes.push(FrameSize::Stepwise {
+                        min_width: s.min_width,
+                        max_width: s.max_width,
+                        step_width: s.step_width.max(1),
+                        min_height: s.min_height,
+                        max_height: s.max_height,
+                        step_height: s.step_height.max(1),
+                    });
+                    break; // A stepwise answer is the only entry.
+                }
+                _ => break,
+            }
+        }
+        Ok(sizes)
+    }
+
+    fn intervals(
+        &self,
+        pixelformat: u32,
+        width: u32,
+        height: u32,
+    ) -> Result<Vec<(u32, u32)>, V4l2Error> {
+        let fd = self.file.as_fd();
+        let mut out = Vec::new();
+        for index in 0..64 {
+            let mut e: sys::FrmIvalEnum = sys::zeroed();
+            e.index = index;
+            e.pixel_format = pixelformat;
+            e.width = width;
+            e.height = height;
+            match sys::ioctl(fd, sys::VIDIOC_ENUM_FRAMEINTERVALS, &mut e) {
+                Ok(()) => {}
+                Err(err) if matches!(err.raw_os_error(), Some(libc::EINVAL | libc::ENOTTY)) => {
+                    break
+                }
+                Err(err) => return Err(ioctl_error(&self.path, "VIDIOC_ENUM_FRAMEINTERVALS", err)),
+            }
+            if e.type_ != sys::V4L2_FRMIVAL_TYPE_DISCRETE {
+                break; // Continuous or stepwise ranges: S_PARM will say what it gets.
+            }
+            // SAFETY: the driver filled the `discrete` member, as `type_` says.
+            let f = unsafe { e.interval.discrete };
+            out.push((f.numerator, f.denominator));
+        }
+        Ok(out)
+    }
+
+    /// Sets the format and frame rate closest to `req` that the device offers, and
+    /// reads back what the driver actually set. Differences from the request are in
+    /// [`Negotiated::fallbacks`] and logged as warnings; they are not errors. Fails
+    /// only if the device offers none of [`USABLE_FOURCCS`].
+    pub fn negotiate(&mut self, req: &FormatRequest) -> Result<Negotiated, V4l2Error> {
+        let fd = self.file.as_fd();
+        let path = self.path.clone();
+        let mut fallbacks = Vec::new();
+
+        let offered: Vec<[u8; 4]> = self.formats()?.iter().map(|f| f.fourcc).collect();
+        let Some((fourcc, note)) = choose_fourcc(&req.fourccs, &offered) else {
+            return Err(V4l2Error::NoUsableFormat {
+                path,
+                offered: offered.iter().map(|f| fourcc_str(*f)).collect(),
+            });
+        };
+        fallbacks.extend(note);
+
+        let mut format: sys::Format = sys::zeroed();
+        format.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
+        call(fd, &path, sys::VIDIOC_G_FMT, &mut format)?;
+        // SAFETY: G_FMT for a VIDEO_CAPTURE type fills the `pix` member.
+        let mut pix = unsafe { format.fmt.pix };
+        if req.width > 0 && req.height > 0 {
+            pix.width = req.width;
+            pix.height = req.height;
+        }
+        pix.pixelformat = sys::fourcc_code(fourcc);
+        pix.field = sys::V4L2_FIELD_NONE;
+        // Let the driver compute these for the new size.
+        pix.bytesperline = 0;
+        pix.sizeimage = 0;
+        format.fmt.pix = pix;
+        call(fd, &path, sys::VIDIOC_S_FMT, &mut format)?;
+        // SAFETY: S_FMT writes the format it set back into the `pix` member.
+        let got = unsafe { format.fmt.pix };
+        let got_fourcc = sys::fourcc_bytes(got.pixelformat);
+        if got_fourcc != fourcc {
+            if !USABLE_FOURCCS.contains(&got_fourcc) {
+                return Err(V4l2Error::NoUsableFormat {
+                    path,
+                    offered: offered.iter().map(|f| fourcc_str(*f)).collect(),
+                });
+            }
+            fallbacks.push(format!(
+                "asked for {}, the driver set {}",
+                fourcc_str(fourcc),
+                fourcc_str(got_fourcc)
+            ));
+        }
+        if req.width > 0 && req.height > 0 && (got.width, got.height) != (req.width, req.height) {
+            fallbacks.push(format!(
+                "asked for {}x{}, the driver set {}x{}",
+                req.width, req.height, got.width, got.height
+            ));
+        }
+        if got.field != sys::V4L2_FIELD_NONE {
+            fallbacks.push(format!(
+                "the driver delivers field order {} instead of progressive frames",
+                got.field
+            ));
+        }
+
+        let (interval_num, interval_den) = self.set_frame_rate(req.fps, &mut fallbacks)?;
+
+        let negotiated = Negotiated {
+            fourcc: got_fourcc,
+            width: got.width,
+            height: got.height,
+            bytes_per_line: got.bytesperline,
+            size_image: got.sizeimage,
+            interval_num,
+            interval_den,
+            driver: self.identity.driver.clone(),
+            card: self.identity.card.clone(),
+            bus_info: self.identity.bus_info.clone(),
+            device: self.path.display().to_string(),
+            node: self.node.clone(),
+            fallbacks,
+        };
+        tracing::info!("negotiated {negotiated}");
+        for note in &negotiated.fallbacks {
+            tracing::warn!("{}: {note}", self.path.display());
+        }
+        self.negotiated = Some(negotiated.clone());
+        Ok(negotiated)
+    }
+
+    /// S_PARM to `1/fps` when the driver allows it, then G_PARM to read back what it
+    /// runs at. Drivers that cannot set or report a rate are notes, not errors.
+    fn set_frame_rate(
+        &self,
+        fps: u32,
+        fallbacks: &mut Vec<String>,
+    ) -> Result<(u32, u32), V4l2Error> {
+        let fd = self.file.as_fd();
+        let mut parm: sys::StreamParm = sys::zeroed();
+        parm.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
+        match sys::ioctl(fd, sys::VIDIOC_G_PARM, &mut parm) {
+            Ok(()) => {}
+            Err(e) if matches!(e.raw_os_error(), Some(libc::ENOTTY | libc::EINVAL)) => {
+                if fps > 0 {
+                    fallbacks.push(format!(
+                        "asked for {fps} fps, the driver neither sets nor reports a frame rate"
+                    ));
+                }
+                return Ok((0, 0));
+            }
+            Err(e) => return Err(ioctl_error(&self.path, "VIDIOC_G_PARM", e)),
+        }
+        // SAFETY: G_PARM for a VIDEO_CAPTURE type fills the `capture` member.
+        let capture = unsafe { parm.parm.capture };
+        if fps > 0 {
+            if capture.capability & sys::V4L2_CAP_TIMEPERFRAME == 0 {
+                fallbacks.push(format!(
+                    "asked for {fps} fps, the driver does not let the frame rate be set"
+                ));
+            } else {
+                let mut set: sys::StreamParm = sys::zeroed();
+                set.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
+                let mut c = capture;
+                c.timeperframe = Fract {
+                    numerator: 1,
+                    denominator: fps,
+                };
+                set.parm.capture = c;
+                if let Err(e) = sys::ioctl(fd, sys::VIDIOC_S_PARM, &mut set) {
+                    match e.raw_os_error() {
+                        Some(libc::ENOTTY | libc::EINVAL) => {
+                            fallbacks.push(format!("asked for {fps} fps, the driver refused ({e})"))
+                        }
+                        _ => return Err(ioctl_error(&self.path, "VIDIOC_S_PARM", e)),
+                    }
+                }
+            }
+        }
+        let mut back: sys::StreamParm = sys::zeroed();
+        back.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
+        call(fd, &self.path, sys::VIDIOC_G_PARM, &mut back)?;
+        // SAFETY: G_PARM for a VIDEO_CAPTURE type fills the `capture` member.
+        let t = unsafe { back.parm.capture }.timeperframe;
+        if t.numerator == 0 || t.denominator == 0 {
+            if fps > 0 {
+                fallbacks.push(format!(
+                    "asked for {fps} fps, the driver does not report its frame rate"
+                ));
+            }
+            return Ok((0, 0));
+        }
+        if fps > 0 && (u64::from(t.denominator) != u64::from(fps) * u64::from(t.numerator)) {
+            fallbacks.push(format!(
+                "asked for {fps} fps, the driver runs at {:.3} fps ({}/{} s)",
+                t.denominator as f64 / t.numerator as f64,
+                t.numerator,
+                t.denominator
+            ));
+        }
+        Ok((t.numerator, t.denominator))
+    }
+
+    /// The format currently set, for [`Device::start`] without [`Device::negotiate`].
+    fn current(&self) -> Result<Negotiated, V4l2Error> {
+        let fd = self.file.as_fd();
+        let mut format: sys::Format = sys::zeroed();
+        format.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
+        call(fd, &self.path, sys::VIDIOC_G_FMT, &mut format)?;
+        // SAFETY: G_FMT for a VIDEO_CAPTURE type fills the `pix` member.
+        let pix = unsafe { format.fmt.pix };
+        let mut ignored = Vec::new();
+        let (interval_num, interval_den) = self.set_frame_rate(0, &mut ignored)?;
+        Ok(Negotiated {
+            fourcc: sys::fourcc_bytes(pix.pixelformat),
+            width: pix.width,
+            height: pix.height,
+            bytes_per_line: pix.bytesperline,
+            size_image: pix.sizeimage,
+            interval_num,
+            interval_den,
+            driver: self.identity.driver.clone(),
+            card: self.identity.card.clone(),
+            bus_info: self.identity.bus_info.clone(),
+            device: self.path.display().to_string(),
+            node: self.node.clone(),
+            fallbacks: Vec::new(),
+        })
+    }
+
+    /// Allocates `buffers` driver buffers (the driver may grant a different number),
+    /// maps and queues them all, and starts streaming. Without a prior
+    /// [`Device::negotiate`], streams in the device's current format. On error the
+    /// device is closed and any mapped buffers are unmapped.
+    pub fn start(self, buffers: u32) -> Result<Stream, V4l2Error> {
+        let negotiated = match &self.negotiated {
+            Some(n) => n.clone(),
+            None => self.current()?,
+        };
+        let Device { file, path, .. } = self;
+        let fd = file.as_fd();
+        let mut req: sys::RequestBuffers = sys::zeroed();
+        req.count = buffers.max(1);
+        req.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
+        req.memory = sys::V4L2_MEMORY_MMAP;
+        call(fd, &path, sys::VIDIOC_REQBUFS, &mut req)?;
+        if req.count == 0 {
+            return Err(V4l2Error::Ioctl {
+                path,
+                op: "VIDIOC_REQBUFS",
+                source: io::Error::new(io::ErrorKind::OutOfMemory, "the driver granted no buffers"),
+            });
+        }
+        if req.count != buffers {
+            tracing::warn!(
+                "{}: asked for {buffers} buffers, the driver granted {}",
+                path.display(),
+                req.count
+            );
+        }
+        let mut mappings = Vec::with_capacity(req.count as usize);
+        for index in 0..req.count {
+            let mut buf: sys::Buffer = sys::zeroed();
+            buf.index = index;
+            buf.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
+            buf.memory = sys::V4L2_MEMORY_MMAP;
+            call(fd, &path, sys::VIDIOC_QUERYBUF, &mut buf)?;
+            // SAFETY: QUERYBUF of an MMAP buffer fills `m.offset`.
+            let offset = unsafe { buf.m.offset };
+            let mapping = sys::Mapping::new(fd, buf.length as usize, offset)
+                .map_err(|e| ioctl_error(&path, "mmap", e))?;
+            mappings.push(mapping);
+        }
+        for index in 0..req.count {
+            queue(fd, &path, index)?;
+        }
+        let mut kind: libc::c_int = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE as libc::c_int;
+        call(fd, &path, sys::VIDIOC_STREAMON, &mut kind)?;
+        tracing::info!(
+            "{}: streaming with {} buffers of {} bytes",
+            path.display(),
+            mappings.len(),
+            mappings.first().map_or(0, |m| m.byte_len())
+        );
+        Ok(Stream {
+            file,
+            path,
+            negotiated,
+            mappings,
+            held: None,
+            streaming: true,
+        })
+    }
+}
+
+/// An error from opening the resolved node, named after the path the caller gave.
+fn renamed(e: V4l2Error, path: &Path) -> V4l2Error {
+    let path = path.to_path_buf();
+    match e {
+        V4l2Error::NotFound { .. } => V4l2Error::NotFound { path },
+        V4l2Error::Open { source, .. } => V4l2Error::Open { path, source },
+        V4l2Error::DeviceLost { op, source, .. } => V4l2Error::DeviceLost { path, op, source },
+        V4l2Error::Busy { op, .. } => V4l2Error::Busy { path, op },
+        other => other,
+    }
+}
+
+fn queue(fd: BorrowedFd<'_>, path: &Path, index: u32) -> Result<(), V4l2Error> {
+    let mut buf: sys::Buffer = sys::zeroed();
+    buf.index = index;
+    buf.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
+    buf.memory = sys::V4L2_MEMORY_MMAP;
+    call(fd, path, sys::VIDIOC_QBUF, &mut buf)
+}
+
+/// A streaming capture device. `Send`: the daemon moves it into its capture thread.
+pub struct Stream {
+    file: File,
+    path: PathBuf,
+    negotiated: Negotiated,
+    mappings: Vec<sys::Mapping>,
+    /// The buffer lent out as the last [`Frame`], re-queued at the next call.
+    held: Option<u32>,
+    streaming: bool,
+}
+
+/// One dequeued buffer. It borrows the [`Stream`], so it must be dropped (or its
+/// bytes copied) before the next [`Stream::next_frame`], which hands the buffer back
+/// to the driver.
+#[derive(Debug)]
+pub struct Frame<'a> {
+    /// The driver's frame counter; a jump of more than one means the driver dropped
+    /// frames (usually because every buffer was held by us).
+    pub sequence: u32,
+    /// When the driver captured the frame (usually `CLOCK_MONOTONIC`, see
+    /// [`Frame::monotonic`]), in nanoseconds.
+    pub timestamp_nanos: u64,
+    /// `V4L2_BUF_FLAG_*`; `V4L2_BUF_FLAG_ERROR` (0x40) marks a frame the driver knows
+    /// is damaged.
+    pub flags: u32,
+    /// The payload (`bytesused` bytes of the buffer).
+    pub bytes: &'a [u8],
+}
+
+impl Frame<'_> {
+    /// The driver flagged this frame as damaged (`V4L2_BUF_FLAG_ERROR`).
+    pub fn is_error(&self) -> bool {
+        self.flags & sys::V4L2_BUF_FLAG_ERROR != 0
+    }
+
+    /// The timestamp is from `CLOCK_MONOTONIC` (comparable with `clock_gettime`).
+    pub fn monotonic(&self) -> bool {
+        self.flags & sys::V4L2_BUF_FLAG_TIMESTAMP_MASK == sys::V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC
+    }
+}
+
+impl Stream {
+    pub fn negotiated(&self) -> &Negotiated {
+        &self.negotiated
+    }
+
+    /// How many buffers the driver granted.
+    pub fn buffer_count(&self) -> usize {
+        self.mappings.len()
+    }
+
+    /// Waits up to `timeout` for the next frame. `Ok(None)` if none came in time or a
+    /// signal interrupted the wait (check your stop flag and call again). The buffer of
+    /// the previous frame is re-queued first. A vanished device is
+    /// [`V4l2Error::DeviceLost`]; after any error, drop the stream and reopen.
+    pub fn next_frame(&mut self, timeout: Duration) -> Result<Option<Frame<'_>>, V4l2Error> {
+        let fd = self.file.as_fd();
+        if let Some(index) = self.held.take() {
+            queue(fd, &self.path, index)?;
+        }
+        match sys::poll_readable(fd, timeout).map_err(|e| ioctl_error(&self.path, "poll", e))? {
+            Readiness::Readable => {}
+            Readiness::TimedOut | Readiness::Interrupted => return Ok(None),
+            Readiness::Failed(revents) => {
+                return Err(V4l2Error::DeviceLost {
+                    path: self.path.clone(),
+                    op: "poll",
+                    source: io::Error::other(format!("poll reported {}", poll_bits(revents))),
+                })
+            }
+        }
+        let mut buf: sys::Buffer = sys::zeroed();
+        buf.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
+        buf.memory = sys::V4L2_MEMORY_MMAP;
+        match sys::ioctl(fd, sys::VIDIOC_DQBUF, &mut buf) {
+            Ok(()) => {}
+            // Readable but nothing to dequeue (another reader was faster): a timeout.
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(None),
+            Err(e) => return Err(ioctl_error(&self.path, "VIDIOC_DQBUF", e)),
+        }
+        let Some(mapping) = self.mappings.get(buf.index as usize) else {
+            return Err(V4l2Error::Ioctl {
+                path: self.path.clone(),
+                op: "VIDIOC_DQBUF",
+                source: io::Error::new(
+                    io::ErrorKind::InvalidData,
+                    format!(
+                        "driver returned buffer index {} of {}",
+                        buf.index,
+                        self.mappings.len()
+                    ),
+                ),
+            });
+        };
+        self.held = Some(buf.index);
+        let timestamp_nanos = nanos_from_timeval(buf.timestamp);
+        tracing::trace!(
+            sequence = buf.sequence,
+            timestamp_nanos,
+            bytes = buf.bytesused,
+            flags = buf.flags,
+            index = buf.index,
+            "frame"
+        );
+        // SAFETY: buffer `buf.index` is dequeued: it belongs to user space until we
+        // QBUF it, which happens only in `next_frame`/`drop`, both needing `&mut self`,
+        // which the returned `Frame` (borrowing `self`) rules out while it lives.
+        let bytes = unsafe { mapping.bytes(buf.bytesused as usize) };
+        Ok(Some(Frame {
+            sequence: buf.sequence,
+            timestamp_nanos,
+            flags: buf.flags,
+            bytes,
+        }))
+    }
+}
+
+fn poll_bits(revents: i16) -> String {
+    let mut names = Vec::new();
+    for (bit, name) in [
+        (libc::POLLERR, "POLLERR"),
+        (libc::POLLHUP, "POLLHUP"),
+        (libc::POLLNVAL, "POLLNVAL"),
+    ] {
+        if revents & bit != 0 {
+            names.push(name);
+        }
+    }
+    names.join(" | ")
+}
+
+impl Drop for Stream {
+    fn drop(&mut self) {
+        if self.streaming {
+            let mut kind: libc::c_int = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE as libc::c_int;
+            if let Err(e) = sys::ioctl(self.file.as_fd(), sys::VIDIOC_STREAMOFF, &mut kind) {
+                // A vanished device cannot stop; closing releases everything anyway.
+                tracing::debug!("{}: VIDIOC_STREAMOFF: {e}", self.path.display());
+            }
+            self.streaming = false;
+        }
+        // Unmap before the file closes (field order would do it the other way round).
+        self.mappings.clear();
+    }
+}
+
+/// What to write into a v4l2loopback device.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OutputFormat {
+    pub fourcc: [u8; 4],
+    pub width: u32,
+    pub height: u32,
+    /// 0 lets the driver choose (and is right for MJPG).
+    pub bytes_per_line: u32,
+    /// Advertised to readers through S_PARM; the writer paces itself.
+    pub fps: f64,
+}
+
+/// A v4l2loopback OUTPUT node that frames are written to, one `write(2)` per frame.
+pub struct OutputDevice {
+    file: File,
+    path: PathBuf,
+    size_image: u32,
+    bytes_per_line: u32,
+}
+
+/// Room for one JPEG: far more than any camera's MJPEG frame at that size.
+fn mjpeg_size_image(width: u32, height: u32) -> u32 {
+    (u64::from(width) * u64::from(height) * 4)
+        .clamp(1 << 20, 64 << 20)
+        .try_into()
+        .unwrap_or(64 << 20)
+}
+
+impl OutputDevice {
+    /// Opens `path` (blocking writes), checks it is a video output node, sets the
+    /// OUTPUT format and advertises the frame rate. Keep the value alive for as long
+    /// as readers should see the format.
+    pub fn open(path: &Path, format: &OutputFormat) -> Result<OutputDevice, V4l2Error> {
+        let file = open_node(path, false)?;
+        let fd = file.as_fd();
+        let identity = query_identity(fd, path).map_err(|e| match e {
+            V4l2Error::NotCapture { path, caps } => V4l2Error::NotOutput { path, caps },
+            other => other,
+        })?;
+        if identity.caps & sys::V4L2_CAP_VIDEO_OUTPUT == 0 {
+            return Err(V4l2Error::NotOutput {
+                path: path.to_path_buf(),
+                caps: identity.caps,
+            });
+        }
+        let compressed = &format.fourcc == b"MJPG" || &format.fourcc == b"JPEG";
+        let mut f: sys::Format = sys::zeroed();
+        f.type_ = sys::V4L2_BUF_TYPE_VIDEO_OUTPUT;
+        let mut pix: sys::PixFormat = sys::zeroed();
+        pix.width = format.width;
+        pix.height = format.height;
+        pix.pixelformat = sys::fourcc_code(format.fourcc);
+        pix.field = sys::V4L2_FIELD_NONE;
+        pix.colorspace = sys::V4L2_COLORSPACE_SRGB;
+        pix.bytesperline = if compressed { 0 } else { format.bytes_per_line };
+        pix.sizeimage = if compressed {
+            mjpeg_size_image(format.width, format.height)
+        } else {
+            0
+        };
+        f.fmt.pix = pix;
+        call(fd, path, sys::VIDIOC_S_FMT, &mut f)?;
+        // SAFETY: S_FMT for a VIDEO_OUTPUT type writes back the `pix` member.
+        let got = unsafe { f.fmt.pix };
+        if (got.width, got.height, got.pixelformat) != (pix.width, pix.height, pix.pixelformat) {
+            return Err(V4l2Error::Ioctl {
+                path: path.to_path_buf(),
+                op: "VIDIOC_S_FMT",
+                source: io::Error::new(
+                    io::ErrorKind::InvalidInput,
+                    format!(
+                        "asked for {} {}x{}, the driver set {} {}x{}",
+                        fourcc_str(format.fourcc),
+                        format.width,
+                        format.height,
+                        fourcc_str(sys::fourcc_bytes(got.pixelformat)),
+                        got.width,
+                        got.height
+                    ),
+                ),
+            });
+        }
+        if let Some((num, den)) = interval_from_fps(format.fps) {
+            let mut parm: sys::StreamParm = sys::zeroed();
+            parm.type_ = sys::V4L2_BUF_TYPE_VIDEO_OUTPUT;
+            parm.parm.output = sys::OutputParm {
+                capability: sys::V4L2_CAP_TIMEPERFRAME,
+                outputmode: 0,
+                timeperframe: Fract {
+                    numerator: num,
+                    denominator: den,
+                },
+                extendedmode: 0,
+                writebuffers: 0,
+                reserved: [0; 4],
+            };
+            if let Err(e) = sys::ioctl(fd, sys::VIDIOC_S_PARM, &mut parm) {
+                tracing::warn!(
+                    "{}: cannot advertise {} fps to readers: {e}",
+                    path.display(),
+                    format.fps
+                );
+            }
+        }
+        tracing::info!(
+            "{}: output {} {}x{}, {} bytes per line, buffers of {} bytes ({}, driver {})",
+            path.display(),
+            fourcc_str(sys::fourcc_bytes(got.pixelformat)),
+            got.width,
+            got.height,
+            got.bytesperline,
+            got.sizeimage,
+            identity.card,
+            identity.driver
+        );
+        Ok(OutputDevice {
+            file,
+            path: path.to_path_buf(),
+            size_image: got.sizeimage,
+            bytes_per_line: got.bytesperline,
+        })
+    }
+
+    /// The driver's buffer size: the largest frame [`OutputDevice::write_frame`] takes.
+    pub fn size_image(&self) -> u32 {
+        self.size_image
+    }
+
+    pub fn bytes_per_line(&self) -> u32 {
+        self.bytes_per_line
+    }
+
+    /// Writes one whole frame in one `write(2)`.
+    pub fn write_frame(&mut self, bytes: &[u8]) -> Result<(), V4l2Error> {
+        if self.size_image > 0 && bytes.len() > self.size_image as usize {
+            return Err(V4l2Error::FrameTooLarge {
+                path: self.path.clone(),
+                len: bytes.len(),
+                size_image: self.size_image,
+            });
+        }
+        loop {
+            match self.file.write(bytes) {
+                Ok(n) if n == bytes.len() => return Ok(()),
+                Ok(n) => {
+                    return Err(ioctl_error(
+                        &self.path,
+                        "write",
+                        io::Error::new(
+                            io::ErrorKind::WriteZero,
+                            format!("the driver took {n} of {} bytes", bytes.len()),
+                        ),
+                    ))
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(ioctl_error(&self.path, "write", e)),
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dev_null_is_not_a_capture_device_and_the_message_says_which_path() {
+        let err = Device::open(Path::new("/dev/null"))
+            .err()
+            .expect("/dev/null must be refused");
+        assert!(
+            matches!(err, V4l2Error::NotCapture { caps: 0, .. }),
+            "{err:?}"
+        );
+        let msg = err.to_string();
+        assert!(
+            msg.contains("/dev/null is not a V4L2 capture device"),
+            "{msg}"
+        );
+        assert!(!err.is_retryable());
+
+        let err = OutputDevice::open(
+            Path::new("/dev/null"),
+            &OutputFormat {
+                fourcc: *b"YUYV",
+                width: 64,
+                height: 48,
+                bytes_per_line: 128,
+                fps: 30.0,
+            },
+        )
+        .err()
+        .expect("/dev/null must be refused");
+        assert!(
+            matches!(err, V4l2Error::NotOutput { caps: 0, .. }),
+            "{err:?}"
+        );
+        assert!(err.to_string().contains("/dev/null"), "{err}");
+    }
+
+    #[test]
+    fn a_missing_device_is_not_found_and_retryable() {
+        let path = Path::new("/dev/v4l/by-id/usb-no-such-camera-video-index0");
+        let err = Device::open(path).err().expect("missing");
+        assert!(matches!(err, V4l2Error::NotFound { .. }), "{err:?}");
+        assert!(
+            err.to_string().contains(&path.display().to_string()),
+            "{err}"
+        );
+        assert!(err.is_retryable());
+        let dir = tempfile::tempdir().expect("tempdir");
+        let err = OutputDevice::open(
+            &dir.path().join("video9"),
+            &OutputFormat {
+                fourcc: *b"MJPG",
+                width: 64,
+                height: 48,
+                bytes_per_line: 0,
+                fps: 30.0,
+            },
+        )
+        .err()
+        .expect("missing");
+        assert!(matches!(err, V4l2Error::NotFound { .. }), "{err:?}");
+    }
+
+    #[test]
+    fn a_regular_file_is_not_a_capture_device() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("video0");
+        std::fs::write(&p, b"not a camera").expect("write");
+        let err = Device::open(&p).err().expect("refused");
+        assert!(matches!(err, V4l2Error::NotCapture { .. }), "{err:?}");
+    }
+
+    #[test]
+    fn the_first_requested_format_the_device_offers_wins() {
+        let offered = [*b"YUYV", *b"MJPG", *b"NV12"];
+        assert_eq!(
+            choose_fourcc(&[*b"MJPG", *b"YUYV"], &offered),
+            Some((*b"MJPG", None))
+        );
+        assert_eq!(
+            choose_fourcc(&[*b"RGB3", *b"YUYV"], &offered),
+            Some((*b"YUYV", None))
+        );
+    }
+
+    #[test]
+    fn an_unoffered_request_falls_back_with_a_note_or_fails() {
+        let (f, note) = choose_fourcc(&[*b"MJPG"], &[*b"NV12", *b"RGB3"]).expect("fallback");
+        assert_eq!(&f, b"RGB3");
+        let note = note.expect("a note");
+        assert!(
+            note.contains("asked for MJPG") && note.contains("NV12, RGB3"),
+            "{note}"
+        );
+        assert_eq!(choose_fourcc(&[*b"MJPG"], &[*b"NV12", *b"H264"]), None);
+        let err = V4l2Error::NoUsableFormat {
+            path: "/dev/video3".into(),
+            offered: vec!["NV12".into(), "H264".into()],
+        };
+        assert!(err.to_string().contains("it offers NV12, H264"), "{err}");
+    }
+
+    #[test]
+    fn frame_rates_become_reduced_intervals() {
+        assert_eq!(interval_from_fps(30.0), Some((1, 30)));
+        assert_eq!(interval_from_fps(29.97), Some((100, 2997)));
+        assert_eq!(interval_from_fps(0.5), Some((2, 1)));
+        assert_eq!(interval_from_fps(0.0), None);
+        assert_eq!(interval_from_fps(f64::NAN), None);
+    }
+
+    #[test]
+    fn timestamps_become_nanoseconds() {
+        let tv = libc::timeval {
+            tv_sec: 12,
+            tv_usec: 345_678,
+        };
+        assert_eq!(nanos_from_timeval(tv), 12_345_678_000);
+        let tv = libc::timeval {
+            tv_sec: -1,
+            tv_usec: 0,
+        };
+        assert_eq!(nanos_from_timeval(tv), 0);
+    }
+
+    #[test]
+    fn capability_messages_name_what_is_missing() {
+        let err = V4l2Error::NotCapture {
+            path: "/dev/video1".into(),
+            caps: sys::V4L2_CAP_VIDEO_OUTPUT | sys::V4L2_CAP_STREAMING,
+        };
+        let msg = err.to_string();
+        assert!(msg.contains("VIDEO_OUTPUT | STREAMING"), "{msg}");
+        assert!(msg.contains("exclusive_caps"), "{msg}");
+    }
+
+    #[test]
+    fn negotiated_streams_make_dump_headers() {
+        let n = Negotiated {
+            fourcc: *b"YUYV",
+            width: 640,
+            height: 480,
+            bytes_per_line: 1280,
+            size_image: 614_400,
+            interval_num: 1,
+            interval_den: 30,
+            driver: "vivid".into(),
+            card: "vivid".into(),
+            bus_info: "platform:vivid-000".into(),
+            device: "/dev/video0".into(),
+            node: "/dev/video0".into(),
+            fallbacks: vec![],
+        };
+        let h = n.dump_header();
+        assert_eq!(
+            (
+                h.fourcc,
+                h.width,
+                h.height,
+                h.bytes_per_line,
+                h.interval_den
+            ),
+            (*b"YUYV", 640, 480, 1280, 30)
+        );
+        assert_eq!(n.fps(), Some(30.0));
+        assert!(n.to_string().starts_with("YUYV 640x480"), "{n}");
+    }
+
+    #[test]
+    fn streams_can_move_to_a_capture_thread() {
+        fn is_send<T: Send>() {}
+        is_send::<Stream>();
+        is_send::<Device>();
+        is_send::<OutputDevice>();
+    }
+}
