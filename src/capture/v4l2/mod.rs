@@ -159,8 +159,17 @@ fn output_caps_problem(caps: u32) -> String {
     }
 }
 
+/// A fourcc as text. V4L2 marks big-endian variants with bit 31 (the top bit of the
+/// last byte); it is shown as `-BE`, as v4l2-ctl does, rather than as a broken character.
 fn fourcc_str(f: [u8; 4]) -> String {
-    String::from_utf8_lossy(&f).trim_end().to_string()
+    let big_endian = f[3] & 0x80 != 0;
+    let bytes = [f[0], f[1], f[2], f[3] & 0x7f];
+    let name = String::from_utf8_lossy(&bytes).trim_end().to_string();
+    if big_endian {
+        format!("{name}-BE")
+    } else {
+        name
+    }
 }
 
 /// Maps an ioctl failure: a vanished device, a busy one, or anything else.
@@ -1154,6 +1163,13 @@ impl OutputDevice {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn big_endian_fourccs_print_as_v4l2_ctl_shows_them() {
+        assert_eq!(fourcc_str(*b"YUYV"), "YUYV");
+        assert_eq!(fourcc_str(*b"Y16 "), "Y16");
+        assert_eq!(fourcc_str([b'Y', b'1', b'6', b' ' | 0x80]), "Y16-BE");
+    }
 
     #[test]
     fn dev_null_is_not_a_capture_device_and_the_message_says_which_path() {
