@@ -1,3 +1,4 @@
+# shellcheck shell=sh
 # Helpers for the guest tests: `. /vm/lib.sh` at the top of a test.
 set -eu
 

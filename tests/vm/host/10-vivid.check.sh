@@ -1,3 +1,4 @@
+# shellcheck shell=bash
 # The vivid recordings: 30 whole frames each, in order, of the negotiated size,
 # and decodable the way reconstruct decodes them.
 . "$(dirname "$0")/lib.sh"

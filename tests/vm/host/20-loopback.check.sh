@@ -1,3 +1,4 @@
+# shellcheck shell=bash
 # What record captured from v4l2loopback is what feed wrote: same stream, and
 # consecutive payloads identical to consecutive fed ones (the feeder loops, so the
 # recording may start at any fed frame and wrap around).
@@ -25,8 +26,9 @@ mapfile -t fed < <(frame_table "$RESULTS/fed.inspect.jsonl")
 mapfile -t rec < <(frame_table "$RESULTS/loop.inspect.jsonl")
 ((${#rec[@]} == 20)) || fail "recorded ${#rec[@]} frames, asked for 20"
 payload_id() { # "bytes crc32" of a table line
-    local f=($1)
-    echo "${f[0]} ${f[1]}"
+    local bytes crc
+    read -r bytes crc _ <<<"$1"
+    echo "$bytes $crc"
 }
 position_in_fed() { # index of the fed frame with this payload, or -1
     local i

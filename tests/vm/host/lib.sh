@@ -1,3 +1,4 @@
+# shellcheck shell=bash
 # Helpers for the host-side checks (tests/vm/host/NAME.check.sh): `. "$(dirname "$0")/lib.sh"`.
 # A check gets RESULTS (the guest test's folder), DATA and CROSSLINE; it fails by
 # exiting non-zero, saying why.

@@ -1,3 +1,4 @@
+# shellcheck shell=sh
 # The VM itself: crossline runs (its libraries are in place) and both V4L2 drivers
 # load and make their nodes.
 . /vm/lib.sh

@@ -1,3 +1,4 @@
+# shellcheck shell=sh
 # crossline record against vivid, the kernel's virtual camera: a format it offers
 # (YUYV) and one it lacks (MJPEG), where record must fall back and say so. The dumps
 # are checked on the host (tests/vm/host/10-vivid.check.sh).
@@ -17,7 +18,8 @@ for fmt in yuyv mjpg; do
 done
 
 # vivid has no MJPEG: the fallback must be on stderr, naming what was asked for.
-grep -qiE '(asked for|requested|wanted).*(mjpg|mjpeg)' "$RESULTS/record-mjpg.stderr" &&
-    grep -qiE 'using|fall|instead|not (offer|support|availab)' "$RESULTS/record-mjpg.stderr" ||
+if ! grep -qiE '(asked for|requested|wanted).*(mjpg|mjpeg)' "$RESULTS/record-mjpg.stderr" ||
+    ! grep -qiE 'using|fall|instead|not (offer|support|availab)' "$RESULTS/record-mjpg.stderr"; then
     fail "record --format mjpg on vivid (no MJPEG) did not report a fallback on stderr"
+fi
 rmmod vivid

@@ -1,3 +1,4 @@
+# shellcheck shell=sh
 # crossline feed writes a simulated dump into a v4l2loopback device and crossline
 # record captures it from the other side: the payloads must come through unchanged
 # (compared on the host, tests/vm/host/20-loopback.check.sh).
