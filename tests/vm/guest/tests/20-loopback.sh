@@ -12,12 +12,19 @@ echo "+ crossline feed --device /dev/video10 --input $DATA/bricks.dump --fps 30 
 crossline feed --device /dev/video10 --input "$DATA/bricks.dump" --fps 30 --loop \
     >"$RESULTS/feed.log" 2>&1 &
 feeder=$!
-# The capture side has no format until the first frame is written.
-sleep 2
-kill -0 $feeder 2>/dev/null || {
-    cat "$RESULTS/feed.log"
-    fail "crossline feed exited early"
-}
+# The capture side has no format until the writer has started; v4l2loopback shows
+# it in sysfs ("MJPG:320x180@30") from then on.
+n=0
+until [ -n "$(cat /sys/class/video4linux/video10/format 2>/dev/null)" ]; do
+    kill -0 $feeder 2>/dev/null || {
+        cat "$RESULTS/feed.log"
+        fail "crossline feed exited before writing a frame"
+    }
+    n=$((n + 1))
+    [ $n -le 200 ] || fail "no format on /dev/video10 after 20 s of crossline feed"
+    sleep 0.1
+done
+echo "/dev/video10 format: $(cat /sys/class/video4linux/video10/format)"
 echo "+ crossline record --device /dev/video10 --frames 20"
 crossline record --device /dev/video10 --frames 20 --out "$RESULTS/loop.dump" ||
     rc=$?
