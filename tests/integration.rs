@@ -580,4 +580,5 @@ fn record_and_feed_refuse_what_is_not_a_video_device() {
             .arg(tmp.path().join("none.dump")),
     );
     assert!(err.contains("none.dump"), "{err}");
+    assert_eq!(err.matches("os error 2").count(), 1, "cause once: {err}");
 }

@@ -73,10 +73,27 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => code,
         Err(err) => {
-            eprintln!("crossline: error: {err:#}");
+            eprintln!("crossline: error: {}", error_chain(&err));
             ExitCode::FAILURE
         }
     }
+}
+
+/// `{err:#}` without repeats: the library's errors put their cause in their message
+/// and also return it as `source()`, which `{:#}` would print a second time.
+fn error_chain(err: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in err.chain() {
+        let text = cause.to_string();
+        if out.ends_with(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
 }
 
 /// A flag that SIGINT and SIGTERM raise, for loops that stop cleanly between frames.
@@ -85,6 +102,10 @@ fn stop_on_signals() -> anyhow::Result<std::sync::Arc<std::sync::atomic::AtomicB
     use anyhow::Context;
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        // A second signal, while the first is still being honoured, ends the process
+        // (exit code 1), in case it is stuck in a blocking call.
+        signal_hook::flag::register_conditional_shutdown(signal, 1, std::sync::Arc::clone(&stop))
+            .context("installing the SIGINT/SIGTERM handler")?;
         signal_hook::flag::register(signal, std::sync::Arc::clone(&stop))
             .context("installing the SIGINT/SIGTERM handler")?;
     }

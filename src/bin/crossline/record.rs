@@ -27,8 +27,9 @@ Examples:
   v4l2-ctl --list-formats-ext -d /dev/video0   # what the camera offers
 
 Stops at --frames, at --seconds, or on Ctrl-C / SIGTERM (the dump is complete
-either way). Exits non-zero if the device is missing, not a camera, or lost
-while recording; the frames recorded until then stay in the dump.")]
+either way). Exits non-zero if the device is missing, not a camera, lost while
+recording, or silent for --timeout seconds; the frames recorded until then stay
+in the dump.")]
 pub struct Args {
     /// The camera: /dev/videoN or a stable /dev/v4l/by-id/... link.
     #[arg(long)]
@@ -53,6 +54,10 @@ pub struct Args {
     /// Stop after this many seconds.
     #[arg(long)]
     seconds: Option<f64>,
+    /// Give up (exit 1) when no frame arrives for this many seconds; by default wait
+    /// for as long as it takes, warning every 5 s.
+    #[arg(long)]
+    timeout: Option<f64>,
     /// Driver buffers to queue; more buffers ride out longer stalls of the disk.
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(2..=32))]
     buffers: u32,
@@ -130,7 +135,8 @@ impl Tally {
         }
         s.push_str(&format!("; {} frames dropped by the driver", self.dropped));
         if self.gaps > 0 {
-            s.push_str(&format!(" (in {} gaps)", self.gaps));
+            let plural = if self.gaps == 1 { "" } else { "s" };
+            s.push_str(&format!(" (in {} gap{plural})", self.gaps));
         }
         if self.damaged > 0 {
             s.push_str(&format!(
@@ -149,6 +155,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let duration = match args.seconds {
         Some(s) if !(s.is_finite() && s > 0.0) => {
             bail!("--seconds {s}: expected a positive number")
+        }
+        Some(s) => Some(Duration::from_secs_f64(s)),
+        None => None,
+    };
+    let timeout = match args.timeout {
+        Some(s) if !(s.is_finite() && s > 0.0) => {
+            bail!("--timeout {s}: expected a positive number of seconds")
         }
         Some(s) => Some(Duration::from_secs_f64(s)),
         None => None,
@@ -212,6 +225,16 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             }
             Ok(None) => {
                 let silent = last_frame_at.elapsed();
+                if timeout.is_some_and(|t| silent >= t) {
+                    writer.finish()?;
+                    bail!(
+                        "no frame from {} for {:.1} s (--timeout) after {}; {} holds the frames recorded until then",
+                        args.device.display(),
+                        silent.as_secs_f64(),
+                        tally.report(),
+                        args.out.display()
+                    );
+                }
                 if silent >= warned_silence + Duration::from_secs(5) {
                     warned_silence = silent;
                     tracing::warn!(

@@ -46,6 +46,8 @@ pub const USABLE_FOURCCS: [[u8; 4]; 3] = [*b"MJPG", *b"YUYV", *b"RGB3"];
 pub enum V4l2Error {
     #[error("{path}: no such device (is the camera plugged in and its driver loaded?)")]
     NotFound { path: PathBuf },
+    #[error("{path}: permission denied (is this user in the `video` group?)")]
+    PermissionDenied { path: PathBuf },
     #[error("cannot open {path}: {source}")]
     Open {
         path: PathBuf,
@@ -86,11 +88,21 @@ impl V4l2Error {
     /// The device is missing, gone or taken: worth reopening after a pause (a camera
     /// re-enumerating on USB, a housing connector reseated). Format and capability
     /// errors are not: they will say the same next time.
+    ///
+    /// A v4l2loopback node whose writer has gone counts as missing: with
+    /// `exclusive_caps=1` it shows OUTPUT but not CAPTURE, otherwise it offers no
+    /// format, until a writer comes back.
     pub fn is_retryable(&self) -> bool {
-        matches!(
-            self,
-            V4l2Error::NotFound { .. } | V4l2Error::DeviceLost { .. } | V4l2Error::Busy { .. }
-        )
+        match self {
+            V4l2Error::NotFound { .. } | V4l2Error::DeviceLost { .. } | V4l2Error::Busy { .. } => {
+                true
+            }
+            V4l2Error::NotCapture { caps, .. } => {
+                caps & sys::V4L2_CAP_VIDEO_OUTPUT != 0 && caps & sys::V4L2_CAP_STREAMING != 0
+            }
+            V4l2Error::NoUsableFormat { offered, .. } => offered.is_empty(),
+            _ => false,
+        }
     }
 
     /// The device (or its driver) disappeared while in use.
@@ -169,6 +181,15 @@ fn fourcc_str(f: [u8; 4]) -> String {
         format!("{name}-BE")
     } else {
         name
+    }
+}
+
+/// The errno text of a refused ioctl, for a note.
+fn refused_reason(e: &V4l2Error) -> String {
+    match e {
+        V4l2Error::Ioctl { source, .. } => source.to_string(),
+        V4l2Error::Busy { .. } => "busy".into(),
+        other => other.to_string(),
     }
 }
 
@@ -319,13 +340,19 @@ pub fn choose_fourcc(
     }
     let f = USABLE_FOURCCS.iter().find(|f| offered.contains(f))?;
     let asked: Vec<String> = requested.iter().map(|f| fourcc_str(*f)).collect();
-    let has: Vec<String> = offered.iter().map(|f| fourcc_str(*f)).collect();
+    // vivid offers some 90 formats: name the ones crossline reads, count the rest.
+    let readable: Vec<String> = USABLE_FOURCCS
+        .iter()
+        .filter(|f| offered.contains(f))
+        .map(|f| fourcc_str(*f))
+        .collect();
     Some((
         *f,
         Some(format!(
-            "asked for {}, the device offers {}: using {}",
+            "asked for {}, which the device does not offer (of the {} formats it offers, crossline reads {}): using {}",
             list_or_none(&asked),
-            list_or_none(&has),
+            offered.len(),
+            readable.join(", "),
             fourcc_str(*f)
         )),
     ))
@@ -383,6 +410,9 @@ fn open_node(path: &Path, nonblocking: bool) -> Result<File, V4l2Error> {
             Some(libc::EBUSY) => V4l2Error::Busy {
                 path: path.to_path_buf(),
                 op: "open",
+            },
+            Some(libc::EACCES | libc::EPERM) => V4l2Error::PermissionDenied {
+                path: path.to_path_buf(),
             },
             _ => V4l2Error::Open {
                 path: path.to_path_buf(),
@@ -483,23 +513,32 @@ impl Device {
     /// The capture formats the device offers, each with its frame sizes and, for
     /// discrete sizes, frame intervals.
     pub fn formats(&self) -> Result<Vec<FormatInfo>, V4l2Error> {
+        self.descriptions()?
+            .into_iter()
+            .map(|desc| {
+                Ok(FormatInfo {
+                    fourcc: sys::fourcc_bytes(desc.pixelformat),
+                    description: sys::c_string(&desc.description),
+                    compressed: desc.flags & sys::V4L2_FMT_FLAG_COMPRESSED != 0,
+                    sizes: self.frame_sizes(desc.pixelformat)?,
+                })
+            })
+            .collect()
+    }
+
+    /// ENUM_FMT alone (a bound guards against drivers that never say EINVAL).
+    fn descriptions(&self) -> Result<Vec<sys::FmtDesc>, V4l2Error> {
         let fd = self.file.as_fd();
         let mut out = Vec::new();
-        for index in 0.. {
+        for index in 0..256 {
             let mut desc: sys::FmtDesc = sys::zeroed();
             desc.index = index;
             desc.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
             match sys::ioctl(fd, sys::VIDIOC_ENUM_FMT, &mut desc) {
-                Ok(()) => {}
+                Ok(()) => out.push(desc),
                 Err(e) if e.raw_os_error() == Some(libc::EINVAL) => break,
                 Err(e) => return Err(ioctl_error(&self.path, "VIDIOC_ENUM_FMT", e)),
             }
-            out.push(FormatInfo {
-                fourcc: sys::fourcc_bytes(desc.pixelformat),
-                description: sys::c_string(&desc.description),
-                compressed: desc.flags & sys::V4L2_FMT_FLAG_COMPRESSED != 0,
-                sizes: self.frame_sizes(desc.pixelformat)?,
-            });
         }
         Ok(out)
     }
@@ -590,7 +629,21 @@ impl Device {
         let path = self.path.clone();
         let mut fallbacks = Vec::new();
 
-        let offered: Vec<[u8; 4]> = self.formats()?.iter().map(|f| f.fourcc).collect();
+        // Frame sizes are the driver's to round to in S_FMT; only the fourccs matter.
+        let offered: Vec<[u8; 4]> = self
+            .descriptions()?
+            .iter()
+            .map(|d| sys::fourcc_bytes(d.pixelformat))
+            .collect();
+        tracing::debug!(
+            "{} offers {}",
+            self.path.display(),
+            offered
+                .iter()
+                .map(|f| fourcc_str(*f))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
         let Some((fourcc, note)) = choose_fourcc(&req.fourccs, &offered) else {
             return Err(V4l2Error::NoUsableFormat {
                 path,
@@ -614,8 +667,27 @@ impl Device {
         pix.bytesperline = 0;
         pix.sizeimage = 0;
         format.fmt.pix = pix;
-        call(fd, &path, sys::VIDIOC_S_FMT, &mut format)?;
-        // SAFETY: S_FMT writes the format it set back into the `pix` member.
+        if let Err(e) = sys::ioctl(fd, sys::VIDIOC_S_FMT, &mut format) {
+            // v4l2loopback's capture side takes its format from the writer and may
+            // refuse S_FMT (EBUSY, EINVAL): stream in the current format if usable.
+            let refused = ioctl_error(&path, "VIDIOC_S_FMT", e);
+            if !matches!(&refused, V4l2Error::Busy { .. } | V4l2Error::Ioctl { .. }) {
+                return Err(refused);
+            }
+            format = sys::zeroed();
+            format.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
+            call(fd, &path, sys::VIDIOC_G_FMT, &mut format)?;
+            // SAFETY: G_FMT for a VIDEO_CAPTURE type fills the `pix` member.
+            let current = unsafe { format.fmt.pix };
+            if !USABLE_FOURCCS.contains(&sys::fourcc_bytes(current.pixelformat)) {
+                return Err(refused);
+            }
+            fallbacks.push(format!(
+                "the driver refused to set the format ({}); using its current one",
+                refused_reason(&refused)
+            ));
+        }
+        // SAFETY: S_FMT (or G_FMT) wrote the format in force into the `pix` member.
         let got = unsafe { format.fmt.pix };
         let got_fourcc = sys::fourcc_bytes(got.pixelformat);
         if got_fourcc != fourcc {
@@ -695,9 +767,12 @@ impl Device {
         let capture = unsafe { parm.parm.capture };
         if fps > 0 {
             if capture.capability & sys::V4L2_CAP_TIMEPERFRAME == 0 {
-                fallbacks.push(format!(
-                    "asked for {fps} fps, the driver does not let the frame rate be set"
-                ));
+                // Not settable (v4l2loopback: the writer sets it); the read-back below
+                // says whether that matters.
+                tracing::debug!(
+                    "{}: the driver does not let the frame rate be set",
+                    self.path.display()
+                );
             } else {
                 let mut set: sys::StreamParm = sys::zeroed();
                 set.type_ = sys::V4L2_BUF_TYPE_VIDEO_CAPTURE;
@@ -708,11 +783,15 @@ impl Device {
                 };
                 set.parm.capture = c;
                 if let Err(e) = sys::ioctl(fd, sys::VIDIOC_S_PARM, &mut set) {
-                    match e.raw_os_error() {
-                        Some(libc::ENOTTY | libc::EINVAL) => {
-                            fallbacks.push(format!("asked for {fps} fps, the driver refused ({e})"))
-                        }
-                        _ => return Err(ioctl_error(&self.path, "VIDIOC_S_PARM", e)),
+                    // Only a vanished device is fatal: a refused rate (EINVAL, or EBUSY
+                    // from v4l2loopback while its writer owns the rate) leaves the
+                    // current one, read back below.
+                    match ioctl_error(&self.path, "VIDIOC_S_PARM", e) {
+                        lost @ V4l2Error::DeviceLost { .. } => return Err(lost),
+                        refused => fallbacks.push(format!(
+                            "asked for {fps} fps, the driver refused ({})",
+                            refused_reason(&refused)
+                        )),
                     }
                 }
             }
@@ -730,12 +809,12 @@ impl Device {
             }
             return Ok((0, 0));
         }
-        if fps > 0 && (u64::from(t.denominator) != u64::from(fps) * u64::from(t.numerator)) {
+        let got_fps = t.denominator as f64 / t.numerator as f64;
+        // UVC intervals are in 100 ns units: 333333/10000000 s is 30 fps.
+        if fps > 0 && (got_fps / fps as f64 - 1.0).abs() > 1e-3 {
             fallbacks.push(format!(
-                "asked for {fps} fps, the driver runs at {:.3} fps ({}/{} s)",
-                t.denominator as f64 / t.numerator as f64,
-                t.numerator,
-                t.denominator
+                "asked for {fps} fps, the driver runs at {got_fps:.3} fps ({}/{} s)",
+                t.numerator, t.denominator
             ));
         }
         Ok((t.numerator, t.denominator))
@@ -841,6 +920,7 @@ fn renamed(e: V4l2Error, path: &Path) -> V4l2Error {
         V4l2Error::Open { source, .. } => V4l2Error::Open { path, source },
         V4l2Error::DeviceLost { op, source, .. } => V4l2Error::DeviceLost { path, op, source },
         V4l2Error::Busy { op, .. } => V4l2Error::Busy { path, op },
+        V4l2Error::PermissionDenied { .. } => V4l2Error::PermissionDenied { path },
         other => other,
     }
 }
@@ -867,7 +947,6 @@ pub struct Stream {
 /// One dequeued buffer. It borrows the [`Stream`], so it must be dropped (or its
 /// bytes copied) before the next [`Stream::next_frame`], which hands the buffer back
 /// to the driver.
-#[derive(Debug)]
 pub struct Frame<'a> {
     /// The driver's frame counter; a jump of more than one means the driver dropped
     /// frames (usually because every buffer was held by us).
@@ -880,6 +959,18 @@ pub struct Frame<'a> {
     pub flags: u32,
     /// The payload (`bytesused` bytes of the buffer).
     pub bytes: &'a [u8],
+}
+
+impl fmt::Debug for Frame<'_> {
+    /// The payload's length, not its megabytes.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Frame")
+            .field("sequence", &self.sequence)
+            .field("timestamp_nanos", &self.timestamp_nanos)
+            .field("flags", &format_args!("{:#x}", self.flags))
+            .field("bytes", &self.bytes.len())
+            .finish()
+    }
 }
 
 impl Frame<'_> {
@@ -897,6 +988,11 @@ impl Frame<'_> {
 impl Stream {
     pub fn negotiated(&self) -> &Negotiated {
         &self.negotiated
+    }
+
+    /// The path as given to [`Device::open`].
+    pub fn path(&self) -> &Path {
+        &self.path
     }
 
     /// How many buffers the driver granted.
@@ -1028,9 +1124,10 @@ fn mjpeg_size_image(width: u32, height: u32) -> u32 {
 }
 
 impl OutputDevice {
-    /// Opens `path` (blocking writes), checks it is a video output node, sets the
-    /// OUTPUT format and advertises the frame rate. Keep the value alive for as long
-    /// as readers should see the format.
+    /// Opens `path` (blocking writes), sets the OUTPUT format (a node that takes none
+    /// is [`V4l2Error::NotOutput`]; a loopback already streaming another format is
+    /// [`V4l2Error::Busy`]) and advertises the frame rate. Keep the value alive for as
+    /// long as readers should see the format.
     pub fn open(path: &Path, format: &OutputFormat) -> Result<OutputDevice, V4l2Error> {
         let file = open_node(path, false)?;
         let fd = file.as_fd();
@@ -1038,12 +1135,11 @@ impl OutputDevice {
             V4l2Error::NotCapture { path, caps } => V4l2Error::NotOutput { path, caps },
             other => other,
         })?;
-        if identity.caps & sys::V4L2_CAP_VIDEO_OUTPUT == 0 {
-            return Err(V4l2Error::NotOutput {
-                path: path.to_path_buf(),
-                caps: identity.caps,
-            });
-        }
+        // v4l2loopback with exclusive_caps=1 hides OUTPUT while a reader still holds
+        // the stream of an earlier writer, yet takes a new writer of the same format:
+        // so the capability is not checked here; an OUTPUT S_FMT that the driver does
+        // not know is the refusal.
+        let advertises_output = identity.caps & sys::V4L2_CAP_VIDEO_OUTPUT != 0;
         let compressed = &format.fourcc == b"MJPG" || &format.fourcc == b"JPEG";
         let mut f: sys::Format = sys::zeroed();
         f.type_ = sys::V4L2_BUF_TYPE_VIDEO_OUTPUT;
@@ -1060,7 +1156,15 @@ impl OutputDevice {
             0
         };
         f.fmt.pix = pix;
-        call(fd, path, sys::VIDIOC_S_FMT, &mut f)?;
+        if let Err(e) = sys::ioctl(fd, sys::VIDIOC_S_FMT, &mut f) {
+            if !advertises_output && matches!(e.raw_os_error(), Some(libc::EINVAL | libc::ENOTTY)) {
+                return Err(V4l2Error::NotOutput {
+                    path: path.to_path_buf(),
+                    caps: identity.caps,
+                });
+            }
+            return Err(ioctl_error(path, "VIDIOC_S_FMT", e));
+        }
         // SAFETY: S_FMT for a VIDEO_OUTPUT type writes back the `pix` member.
         let got = unsafe { f.fmt.pix };
         if (got.width, got.height, got.pixelformat) != (pix.width, pix.height, pix.pixelformat) {
@@ -1260,7 +1364,8 @@ mod tests {
         assert_eq!(&f, b"RGB3");
         let note = note.expect("a note");
         assert!(
-            note.contains("asked for MJPG") && note.contains("NV12, RGB3"),
+            note.contains("asked for MJPG")
+                && note.contains("of the 2 formats it offers, crossline reads RGB3"),
             "{note}"
         );
         assert_eq!(choose_fourcc(&[*b"MJPG"], &[*b"NV12", *b"H264"]), None);
@@ -1303,6 +1408,12 @@ mod tests {
         let msg = err.to_string();
         assert!(msg.contains("VIDEO_OUTPUT | STREAMING"), "{msg}");
         assert!(msg.contains("exclusive_caps"), "{msg}");
+        assert!(err.is_retryable(), "a loopback node waiting for its writer");
+        let err = V4l2Error::NotCapture {
+            path: "/dev/video1".into(),
+            caps: sys::V4L2_CAP_VIDEO_M2M | sys::V4L2_CAP_STREAMING,
+        };
+        assert!(!err.is_retryable());
     }
 
     #[test]
