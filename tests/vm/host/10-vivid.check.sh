@@ -14,6 +14,8 @@ for fmt in yuyv mjpg; do
     fourcc=$(field fourcc <<<"$header")
     [[ $(field width <<<"$header")x$(field height <<<"$header") == 640x360 ]] ||
         fail "$dump: negotiated $(field width <<<"$header")x$(field height <<<"$header"), asked for 640x360"
+    [[ $(field interval_num <<<"$header")/$(field interval_den <<<"$header") == 1/30 ]] ||
+        fail "$dump: frame interval $(field interval_num <<<"$header")/$(field interval_den <<<"$header") s, asked for 30 fps (vivid offers it)"
     [[ $(field frames <<<"$end") == 30 ]] || fail "$dump: $(field frames <<<"$end") frames, asked for 30"
     case $fmt in
     yuyv) [[ $fourcc == YUYV ]] || fail "$dump: fourcc $fourcc, asked for YUYV (which vivid offers)" ;;
