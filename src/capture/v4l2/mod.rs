@@ -1207,6 +1207,14 @@ impl OutputDevice {
                 );
             }
         }
+        // v4l2loopback (0.12.7) gives an exclusive_caps=1 node its OUTPUT capability
+        // back when a writer closes only if that writer called STREAMON: after a
+        // write(2)-only writer the node advertises neither CAPTURE nor OUTPUT until the
+        // module is reloaded. Best effort: other drivers may want REQBUFS first.
+        let mut kind = sys::V4L2_BUF_TYPE_VIDEO_OUTPUT as libc::c_int;
+        if let Err(e) = sys::ioctl(fd, sys::VIDIOC_STREAMON, &mut kind) {
+            tracing::debug!("{}: VIDIOC_STREAMON (output): {e}", path.display());
+        }
         tracing::info!(
             "{}: output {} {}x{}, {} bytes per line, buffers of {} bytes ({}, driver {})",
             path.display(),
