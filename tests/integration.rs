@@ -412,6 +412,124 @@ fn known_distance_puts_the_cloud_in_metres() {
     );
 }
 
+/// `crossline inspect` output as one JSON value per line.
+fn json_lines(stdout: &[u8]) -> Vec<Value> {
+    String::from_utf8_lossy(stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("one JSON object per line"))
+        .collect()
+}
+
+#[test]
+fn inspect_lists_a_dump_and_says_where_a_cut_one_stops() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let sim = tmp.path().join("sim");
+    run_ok(
+        crossline()
+            .args([
+                "simulate", "--scene", "bricks", "--frames", "6", "--width", "320",
+            ])
+            .args(["--format", "dump", "--out"])
+            .arg(&sim),
+    );
+    let dump = sim.join("frames.dump");
+    let png = tmp.path().join("f3.png");
+    let out = run_ok(
+        crossline()
+            .arg("inspect")
+            .arg(&dump)
+            .args(["--frames", "--decode", "3", "--png"])
+            .arg(&png),
+    );
+    let lines = json_lines(&out.stdout);
+    assert_eq!(lines.len(), 1 + 6 + 1 + 1, "{lines:?}");
+    let header = &lines[0];
+    assert_eq!(header["type"], "header");
+    assert_eq!(header["fourcc"], "MJPG");
+    assert_eq!(header["width"], 320);
+    let frames = &lines[1..7];
+    for (i, f) in frames.iter().enumerate() {
+        assert_eq!(f["type"], "frame");
+        assert_eq!(f["index"], i);
+        assert_eq!(f["sequence"], i);
+        assert_eq!(f["crc32"].as_str().map(str::len), Some(8), "{f}");
+    }
+    // The CRC is of the payload as reconstruct reads it.
+    let bytes = std::fs::read(&dump).expect("dump");
+    let (offset, len) = (
+        frames[2]["offset"].as_u64().expect("offset") as usize,
+        frames[2]["bytes"].as_u64().expect("bytes") as usize,
+    );
+    let crc = format!(
+        "{:08x}",
+        crc32fast::hash(&bytes[offset + 24..offset + 24 + len])
+    );
+    assert_eq!(frames[2]["crc32"], crc.as_str());
+    let decode = &lines[7];
+    assert_eq!(decode["type"], "decode");
+    assert_eq!(
+        (decode["index"].clone(), decode["width"].clone()),
+        (3.into(), 320.into())
+    );
+    let decoded = image::open(&png).expect("png").into_rgb8();
+    assert_eq!(decoded.width(), 320);
+    let end = &lines[8];
+    assert_eq!(end["status"], "clean");
+    assert_eq!(end["frames"], 6);
+    assert_eq!(end["dropped"], 0);
+    assert_eq!(end["bytes_read"], bytes.len());
+
+    // Cut inside frame 4: frames 0..4 are listed and decodable, the end says where, and
+    // the exit status says the dump is damaged.
+    let cut = tmp.path().join("cut.dump");
+    let at = frames[4]["offset"].as_u64().expect("offset") as usize + 100;
+    std::fs::write(&cut, &bytes[..at]).expect("write");
+    let out = crossline()
+        .arg("inspect")
+        .arg(&cut)
+        .args(["--frames", "--decode", "3"])
+        .output()
+        .expect("spawn");
+    assert_eq!(out.status.code(), Some(1));
+    let lines = json_lines(&out.stdout);
+    let end = lines.last().expect("end line");
+    assert_eq!(end["type"], "end");
+    assert_eq!(end["status"], "truncated");
+    assert_eq!(end["frames"], 4);
+    assert_eq!(end["bytes_read"], frames[4]["offset"]);
+    assert!(
+        end["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("after 4 whole frames")),
+        "{end}"
+    );
+    assert_eq!(lines.iter().filter(|l| l["type"] == "frame").count(), 4);
+    assert!(lines.iter().any(|l| l["type"] == "decode"));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("cut.dump") && err.contains("truncated"),
+        "{err}"
+    );
+    // A frame past the damage cannot be decoded, and the error says how many there are.
+    let err = stderr_of_failure(crossline().arg("inspect").arg(&cut).args(["--decode", "5"]));
+    assert!(err.contains("4 whole frames"), "{err}");
+    // A flipped payload byte is corruption, not truncation.
+    let mut damaged = bytes.clone();
+    damaged[frames[1]["offset"].as_u64().expect("offset") as usize + 40] ^= 0x20;
+    std::fs::write(&cut, &damaged).expect("write");
+    let out = crossline()
+        .arg("inspect")
+        .arg(&cut)
+        .output()
+        .expect("spawn");
+    assert_eq!(out.status.code(), Some(1));
+    let end = json_lines(&out.stdout).pop().expect("end");
+    assert_eq!(
+        (end["status"].clone(), end["frames"].clone()),
+        ("corrupt".into(), 1.into())
+    );
+}
+
 /// What `record` and `feed` can show without a camera or v4l2loopback: every refusal
 /// names the path and exits 1. Real devices are exercised in the VM harness.
 #[cfg(target_os = "linux")]

@@ -24,7 +24,7 @@ pub struct LiveParams {
 
 /// How the device is doing.
 enum State {
-    Streaming(Stream),
+    Streaming(Box<Stream>),
     /// Lost; the next attempt is due at `retry_at`.
     Lost {
         retry_at: Instant,
@@ -87,7 +87,7 @@ impl LiveSource {
             header: negotiated.dump_header(),
             negotiated,
             params,
-            state: State::Streaming(stream),
+            state: State::Streaming(Box::new(stream)),
             count: 0,
             news: None,
             buf: Vec::new(),
@@ -130,7 +130,7 @@ impl FrameSource for LiveSource {
             match open(&self.path, &self.params) {
                 Ok(stream) if same_format(stream.negotiated(), &self.negotiated) => {
                     tracing::info!("{}: streaming again", self.path.display());
-                    self.state = State::Streaming(stream);
+                    self.state = State::Streaming(Box::new(stream));
                     return Ok(Next::Resumed);
                 }
                 Ok(stream) => {

@@ -12,6 +12,7 @@ mod device;
 mod extract;
 #[cfg(target_os = "linux")]
 mod feed;
+mod inspect;
 mod reconstruct;
 #[cfg(target_os = "linux")]
 mod record;
@@ -54,6 +55,7 @@ enum Command {
     Serve(serve::Args),
     Status(status::Args),
     Tail(tail::Args),
+    Inspect(inspect::Args),
     #[cfg(target_os = "linux")]
     Record(record::Args),
     #[cfg(target_os = "linux")]
@@ -72,6 +74,7 @@ fn main() -> ExitCode {
         Command::Serve(args) => serve::run(args),
         Command::Status(args) => status::run(args),
         Command::Tail(args) => tail::run(args),
+        Command::Inspect(args) => inspect::run(args),
         #[cfg(target_os = "linux")]
         Command::Record(args) => record::run(args),
         #[cfg(target_os = "linux")]
