@@ -119,9 +119,17 @@ fn replay_streams_status_and_clients_end_with_the_final_cloud() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("frames") && text.contains("planes"), "{text}");
 
-    // A client that joins mid-scan.
+    // A client that joins mid-scan, and `crossline tail` as another.
     std::thread::sleep(Duration::from_millis(1500));
     let late = follow(dir.join("cloud.sock"));
+    let mut tail = crossline()
+        .args(["tail", "--unix"])
+        .arg(dir.join("cloud.sock"))
+        .arg("--out")
+        .arg(dir.join("tail.ply"))
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn tail");
 
     let status = wait_exit(&mut child, Duration::from_secs(60));
     assert!(status.success(), "serve failed: {status}");
@@ -137,9 +145,19 @@ fn replay_streams_status_and_clients_end_with_the_final_cloud() {
             final_cloud.len()
         );
     }
+    let tail_status = wait_exit(&mut tail, Duration::from_secs(30));
+    assert!(
+        tail_status.success(),
+        "crossline tail failed: {tail_status}"
+    );
+    let tailed = read_ply(&dir.join("tail.ply")).expect("tail's cloud");
+    assert!(
+        same_cloud(&tailed, &final_cloud),
+        "crossline tail's cloud differs"
+    );
     let r = report(dir);
     assert_eq!(r["frames_in"], 100);
-    assert_eq!(r["stream_clients_total"], 2);
+    assert_eq!(r["stream_clients_total"], 3);
     assert!(r["latency"]["samples"].as_u64().unwrap_or(0) > 0, "{r}");
 }
 
