@@ -239,6 +239,9 @@ pub struct ReconstructReport {
     pub planes_solved: usize,
     pub rejected_crossings: usize,
     pub rejected_planes: usize,
+    /// Planes whose turn about their 3D line came from the neighbouring frames
+    /// (`solve.motion_prior_max_gap`).
+    pub planes_fixed_by_motion: usize,
     pub residual_rms: f64,
     pub orthogonality_rms_deg: f64,
     pub focal_scale: f64,
@@ -501,8 +504,20 @@ pub fn reconstruct_curves(
         partner: &partner,
         focal_px: camera.fx.max(camera.fy),
     };
+    let mut motion_fill = solve::motion::MotionFill::default();
     let solution: Solution = match source {
-        PlaneSource::SelfCalibrated => solve::solve(&problem, &config.solve)?,
+        PlaneSource::SelfCalibrated => {
+            let mut sol = solve::solve(&problem, &config.solve)?;
+            let sequence: Vec<(u32, u8)> = planes.iter().map(|p| (p.frame, p.laser)).collect();
+            motion_fill = solve::motion::fill_and_extend(
+                &problem,
+                &mut sol,
+                &sequence,
+                config.solve.motion_prior_max_gap,
+            );
+            tracing::debug!(?motion_fill, "motion prior");
+            sol
+        }
         PlaneSource::Known(known) => Solution {
             planes: planes
                 .iter()
@@ -577,6 +592,7 @@ pub fn reconstruct_curves(
         planes_solved: solution.planes.iter().filter(|p| p.is_some()).count(),
         rejected_crossings: solution.rejected_crossings.len(),
         rejected_planes: solution.rejected_curves.len(),
+        planes_fixed_by_motion: motion_fill.filled,
         residual_rms: solution.residual_rms,
         orthogonality_rms_deg: solution.orthogonality_rms_deg,
         focal_scale: lambda,

@@ -37,6 +37,7 @@
 //! about 1) and depths are positive; the caller rescales to metric units.
 
 pub mod extend;
+pub mod motion;
 pub mod nullspace;
 pub mod ortho;
 pub mod seed;
@@ -115,6 +116,10 @@ pub struct SolveParams {
     pub refine_rounds: usize,
     /// A curve with more than this fraction of its crossings rejected is rejected.
     pub max_outlier_fraction: f64,
+    /// Planes left free to turn about their 3D line (crossings on one image line, no
+    /// solved partner) take the turn of the same laser's solved planes at most this
+    /// many frames away ([`motion`]); 0 leaves them unsolved.
+    pub motion_prior_max_gap: u32,
 }
 
 impl Default for SolveParams {
@@ -131,6 +136,7 @@ impl Default for SolveParams {
             robust_rounds: 12,
             refine_rounds: 2,
             max_outlier_fraction: 0.5,
+            motion_prior_max_gap: 3,
         }
     }
 }
