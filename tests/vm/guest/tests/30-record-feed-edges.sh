@@ -7,6 +7,13 @@
 load_module vivid n_devs=1 node_types=0x1
 wait_for_dev /dev/video0
 
+echo "+ crossline record --list-formats"
+crossline record --device /dev/video0 --list-formats >"$RESULTS/formats.txt" ||
+    fail "record --list-formats failed"
+head -n 20 "$RESULTS/formats.txt"
+grep -q '^YUYV' "$RESULTS/formats.txt" || fail "--list-formats does not list YUYV"
+grep -q '^  640x360 at .*30' "$RESULTS/formats.txt" || fail "--list-formats does not list 640x360 at 30 fps"
+
 echo "+ crossline record (no limit), then SIGINT"
 crossline record --device /dev/video0 --format yuyv --size 320x180 --fps 30 \
     --out "$RESULTS/int.dump" 2>"$RESULTS/int.stderr" &
