@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 use crossline::capture::dump::DumpWriter;
-use crossline::capture::v4l2::{Device, FormatRequest, FrameSize, V4l2Error};
+use crossline::capture::v4l2::{fourcc_name, Device, FormatRequest, FrameSize, V4l2Error};
 
 /// Record raw frames from a V4L2 camera into a dump file.
 ///
@@ -156,7 +156,7 @@ fn print_formats(device: &Device) -> anyhow::Result<()> {
     for format in device.formats()? {
         println!(
             "{} ({}{})",
-            String::from_utf8_lossy(&format.fourcc).trim_end(),
+            fourcc_name(format.fourcc),
             format.description,
             if format.compressed {
                 ", compressed"

@@ -362,6 +362,12 @@ pub struct FormatInfo {
     pub sizes: Vec<FrameSize>,
 }
 
+/// A fourcc for people: `YUYV`, `Y16-BE` (V4L2's big-endian flag shown as v4l2-ctl
+/// shows it), never a broken character.
+pub fn fourcc_name(fourcc: [u8; 4]) -> String {
+    fourcc_str(fourcc)
+}
+
 /// Which fourcc to ask for: the first requested one the device offers, else the first
 /// of [`USABLE_FOURCCS`] it offers with a note saying so, else `None`.
 pub fn choose_fourcc(
