@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 use crossline::capture::dump::{DumpError, DumpHeader, DumpReader};
-use crossline::capture::v4l2::{OutputDevice, OutputFormat};
+use crossline::capture::v4l2::{fourcc_name, OutputDevice, OutputFormat};
 
 /// Play a dump into a v4l2loopback device, as if it were a camera.
 ///
@@ -151,7 +151,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut device = Some(open(&args.device, &format)?);
     eprintln!(
         "crossline feed: {} {}x{} from {} (recorded from {}, {}) into {} at {fps:.3} fps",
-        String::from_utf8_lossy(&header.fourcc),
+        fourcc_name(header.fourcc),
         header.width,
         header.height,
         args.input.display(),

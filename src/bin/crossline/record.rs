@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 use crossline::capture::dump::DumpWriter;
-use crossline::capture::v4l2::{Device, FormatRequest, V4l2Error};
+use crossline::capture::v4l2::{fourcc_name, Device, FormatRequest, FrameSize, V4l2Error};
 
 /// Record raw frames from a V4L2 camera into a dump file.
 ///
@@ -24,7 +24,7 @@ Examples:
   crossline record --device /dev/video0 --out dive.dump --seconds 60
   crossline record --device /dev/v4l/by-id/usb-Camera-video-index0 \\
       --out test.dump --format yuyv --size 640x480 --fps 15 --frames 100
-  v4l2-ctl --list-formats-ext -d /dev/video0   # what the camera offers
+  crossline record --device /dev/video0 --list-formats   # what the camera offers
 
 Stops at --frames, at --seconds, or on Ctrl-C / SIGTERM (the dump is complete
 either way). Exits non-zero if the device is missing, not a camera, lost while
@@ -35,8 +35,11 @@ pub struct Args {
     #[arg(long)]
     device: PathBuf,
     /// Where to write the dump.
+    #[arg(long, required_unless_present = "list_formats")]
+    out: Option<PathBuf>,
+    /// List the pixel formats, frame sizes and frame rates the camera offers, and exit.
     #[arg(long)]
-    out: PathBuf,
+    list_formats: bool,
     /// Pixel formats in order of preference (repeat or separate with commas). If the
     /// camera offers none of them, any of mjpg, yuyv, rgb3 it offers is used instead.
     #[arg(long = "format", value_enum, value_delimiter = ',', ignore_case = true,
@@ -148,6 +151,54 @@ impl Tally {
     }
 }
 
+/// One line per format and frame size, with the frame rates of discrete sizes.
+fn print_formats(device: &Device) -> anyhow::Result<()> {
+    for format in device.formats()? {
+        println!(
+            "{} ({}{})",
+            fourcc_name(format.fourcc),
+            format.description,
+            if format.compressed {
+                ", compressed"
+            } else {
+                ""
+            }
+        );
+        for size in &format.sizes {
+            match size {
+                FrameSize::Discrete {
+                    width,
+                    height,
+                    intervals,
+                } => {
+                    let rates: Vec<String> = intervals
+                        .iter()
+                        .filter(|(num, _)| *num > 0)
+                        .map(|(num, den)| format!("{:.4}", *den as f64 / *num as f64))
+                        .map(|r| r.trim_end_matches('0').trim_end_matches('.').to_string())
+                        .collect();
+                    if rates.is_empty() {
+                        println!("  {width}x{height}");
+                    } else {
+                        println!("  {width}x{height} at {} fps", rates.join(", "));
+                    }
+                }
+                FrameSize::Stepwise {
+                    min_width,
+                    max_width,
+                    step_width,
+                    min_height,
+                    max_height,
+                    step_height,
+                } => println!(
+                    "  {min_width}..={max_width} (step {step_width}) x {min_height}..={max_height} (step {step_height})"
+                ),
+            }
+        }
+    }
+    Ok(())
+}
+
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if args.frames == Some(0) {
         bail!("--frames 0 would record nothing");
@@ -169,6 +220,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let stop = crate::stop_on_signals()?;
 
     let mut device = Device::open(&args.device)?;
+    let Some(out) = args.out.clone() else {
+        print_formats(&device)?;
+        return Ok(ExitCode::SUCCESS);
+    };
     let request = FormatRequest {
         fourccs: args.formats.iter().map(|f| f.fourcc()).collect(),
         width: args.size.0,
@@ -181,10 +236,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         eprintln!("crossline record: note: {note}");
     }
     let mut stream = device.start(args.buffers)?;
-    let mut writer = DumpWriter::create(&args.out, &negotiated.dump_header())?;
+    let mut writer = DumpWriter::create(&out, &negotiated.dump_header())?;
     eprintln!(
         "crossline record: recording to {} with {} buffers; Ctrl-C stops",
-        args.out.display(),
+        out.display(),
         stream.buffer_count()
     );
 
@@ -232,7 +287,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                         args.device.display(),
                         silent.as_secs_f64(),
                         tally.report(),
-                        args.out.display()
+                        out.display()
                     );
                 }
                 if silent >= warned_silence + Duration::from_secs(5) {
@@ -256,7 +311,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 return Err(anyhow::Error::new(e).context(format!(
                     "{what} after {}; {} holds the frames recorded until then",
                     tally.report(),
-                    args.out.display()
+                    out.display()
                 )));
             }
         }
@@ -268,7 +323,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         "crossline record: {end} after {:.1} s: {} to {} ({} bytes)",
         started.elapsed().as_secs_f64(),
         tally.report(),
-        args.out.display(),
+        out.display(),
         bytes
     );
     Ok(ExitCode::SUCCESS)

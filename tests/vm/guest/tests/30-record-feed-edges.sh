@@ -7,6 +7,13 @@
 load_module vivid n_devs=1 node_types=0x1
 wait_for_dev /dev/video0
 
+echo "+ crossline record --list-formats"
+crossline record --device /dev/video0 --list-formats >"$RESULTS/formats.txt" ||
+    fail "record --list-formats failed"
+head -n 20 "$RESULTS/formats.txt"
+grep -q '^YUYV' "$RESULTS/formats.txt" || fail "--list-formats does not list YUYV"
+grep -q '^  640x360 at .*30' "$RESULTS/formats.txt" || fail "--list-formats does not list 640x360 at 30 fps"
+
 echo "+ crossline record (no limit), then SIGINT"
 crossline record --device /dev/video0 --format yuyv --size 320x180 --fps 30 \
     --out "$RESULTS/int.dump" 2>"$RESULTS/int.stderr" &
@@ -68,6 +75,22 @@ grep -q '/dev/video10 is not a V4L2 capture device' "$RESULTS/nowriter.stderr" |
 echo "+ feed the node twice in a row"
 run crossline feed --device /dev/video10 --input "$DATA/bricks.dump" --fps 60 --stop-after 10
 run crossline feed --device /dev/video10 --input "$DATA/bricks.dump" --fps 60 --stop-after 10
+
+echo "+ a YUYV recording (from vivid above) through the loopback: uncompressed frames"
+crossline feed --device /dev/video10 --input "$RESULTS/int.dump" --fps 30 --loop \
+    --stop-after 150 >"$RESULTS/feed-yuyv.log" 2>&1 &
+f=$!
+sleep 1
+rc=0
+crossline record --device /dev/video10 --format yuyv --frames 20 --timeout 5 \
+    --out "$RESULTS/yuyv-loop.dump" 2>"$RESULTS/yuyv-loop.stderr" || rc=$?
+kill $f 2>/dev/null
+wait $f 2>/dev/null
+cat "$RESULTS/yuyv-loop.stderr" "$RESULTS/feed-yuyv.log"
+[ $rc -eq 0 ] || fail "record of fed YUYV frames exited $rc"
+grep -q 'negotiated YUYV 320x180 (640 bytes per line)' "$RESULTS/yuyv-loop.stderr" ||
+    fail "the loopback did not carry YUYV 320x180"
+[ "$(wc -c <"$RESULTS/yuyv-loop.dump")" -gt $((20 * 115200)) ] || fail "fewer than 20 whole YUYV frames"
 
 # The pause starts 3 s in, well after record has opened the node: a reader that
 # opens it while no writer holds it is refused (the previous test shows how).
