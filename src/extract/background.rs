@@ -168,6 +168,54 @@ fn check_frames(frames: &[&RgbImage], size: (u32, u32)) -> Result<(), ExtractErr
     Ok(())
 }
 
+/// Median of nine images with the 19 compare-exchanges of Paeth's median-of-nine
+/// network, applied to 64-sample blocks at once so that the compiler vectorises the
+/// min/max: the live daemon's background (nine frames) at 1080p in a few milliseconds
+/// instead of a quarter of a second, while frames wait for it.
+fn median9_into(raws: &[&[u8]], out: &mut RgbImage) {
+    const B: usize = 64;
+    const NET: [(usize, usize); 19] = [
+        (1, 2),
+        (4, 5),
+        (7, 8),
+        (0, 1),
+        (3, 4),
+        (6, 7),
+        (1, 2),
+        (4, 5),
+        (7, 8),
+        (0, 3),
+        (5, 8),
+        (4, 7),
+        (3, 6),
+        (1, 4),
+        (2, 5),
+        (4, 7),
+        (4, 2),
+        (6, 4),
+        (4, 2),
+    ];
+    let out: &mut [u8] = out;
+    let len = out.len();
+    let mut p = [[0u8; B]; 9];
+    let mut start = 0;
+    while start < len {
+        let m = B.min(len - start);
+        for (k, raw) in raws.iter().enumerate() {
+            p[k][..m].copy_from_slice(&raw[start..start + m]);
+        }
+        for &(a, b) in &NET {
+            let (lo, hi) = (p[a], p[b]);
+            for i in 0..B {
+                p[a][i] = lo[i].min(hi[i]);
+                p[b][i] = lo[i].max(hi[i]);
+            }
+        }
+        out[start..start + m].copy_from_slice(&p[4][..m]);
+        start += m;
+    }
+}
+
 /// Per-sample median of `n` (≤ [`MAX_MEDIAN_FRAMES`]) equally sized images into `out`.
 fn median_into<'a>(
     frames: impl Iterator<Item = &'a RgbImage> + Clone,
@@ -182,6 +230,10 @@ fn median_into<'a>(
         r
     };
     let raws = &raws[..n];
+    if n == 9 {
+        median9_into(raws, out);
+        return;
+    }
     let mut values = [0u8; MAX_MEDIAN_FRAMES];
     for (i, o) in out.iter_mut().enumerate() {
         let vals = &mut values[..n];
@@ -206,6 +258,27 @@ mod tests {
 
     fn flat(v: [u8; 3]) -> RgbImage {
         RgbImage::from_pixel(4, 3, image::Rgb(v))
+    }
+
+    #[test]
+    fn median_of_nine_network_equals_the_sort() {
+        let mut state = 12345u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 33) as u8
+        };
+        let frames: Vec<RgbImage> = (0..9)
+            .map(|_| RgbImage::from_fn(37, 11, |_, _| image::Rgb([next(), next(), next()])))
+            .collect();
+        let refs: Vec<&RgbImage> = frames.iter().collect();
+        let fast = Background::median_of(&refs).expect("median");
+        for (i, v) in fast.image().as_raw().iter().enumerate() {
+            let mut vals: Vec<u8> = frames.iter().map(|f| f.as_raw()[i]).collect();
+            vals.sort_unstable();
+            assert_eq!(*v, vals[4], "sample {i}");
+        }
     }
 
     #[test]
