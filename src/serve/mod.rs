@@ -1244,3 +1244,72 @@ fn anyhow_like(e: &dyn std::error::Error) -> String {
     }
     s
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::capture::dump::DumpReader;
+
+    #[test]
+    fn recordings_rotate_by_size_and_keep_every_frame() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let shared = Shared::default();
+        let header = DumpHeader {
+            fourcc: *b"MJPG",
+            width: 64,
+            height: 48,
+            bytes_per_line: 0,
+            interval_num: 1,
+            interval_den: 30,
+            device: "/dev/video0".into(),
+            card: "test".into(),
+        };
+        let mut rec = Recorder {
+            dir: dir.path().join("recordings"),
+            scan: "scan".into(),
+            header: header.clone(),
+            rotate_bytes: 250_000,
+            part: 0,
+            writer: None,
+        };
+        let payload = |i: u32| vec![(i % 251) as u8; 100_000];
+        for i in 0..10u32 {
+            rec.write(&shared, 100 + i, u64::from(i) * 33_000_000, 0, &payload(i));
+        }
+        if let Some(w) = rec.writer.take() {
+            w.finish().expect("finish");
+        }
+        let mut files: Vec<PathBuf> = std::fs::read_dir(dir.path().join("recordings"))
+            .expect("recordings")
+            .map(|e| e.expect("entry").path())
+            .collect();
+        files.sort();
+        assert_eq!(files.len(), 4, "3 frames per 250 kB file: {files:?}");
+        let mut seq = Vec::new();
+        for f in &files {
+            let mut r = DumpReader::open(f).expect("a whole dump");
+            assert_eq!(r.header(), &header);
+            while let Some(record) = r.next_record().expect("record") {
+                assert_eq!(record.payload, payload(record.sequence - 100));
+                seq.push(record.sequence);
+            }
+        }
+        assert_eq!(
+            seq,
+            (100..110).collect::<Vec<_>>(),
+            "every frame once, in order"
+        );
+        let total: u64 = files
+            .iter()
+            .map(|f| std::fs::metadata(f).expect("meta").len())
+            .sum();
+        assert_eq!(
+            shared.recording_bytes.load(Ordering::Relaxed) + 4 * header_len(&header),
+            total
+        );
+    }
+
+    fn header_len(h: &DumpHeader) -> u64 {
+        (42 + 2 + h.device.len() + h.card.len() + 4) as u64
+    }
+}

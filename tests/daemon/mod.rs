@@ -310,3 +310,55 @@ fn damaged_dumps_give_clear_errors_and_keep_what_was_whole() {
     let err = stderr_of_failure(&mut serve(&tmp.path().join("junk"), &junk, "max"));
     assert!(err.contains("not a crossline dump"), "{err}");
 }
+
+#[test]
+fn systemd_hears_ready_status_watchdog_and_stopping() {
+    use std::os::unix::net::UnixDatagram;
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path();
+    let notify = dir.join("notify.sock");
+    let server = UnixDatagram::bind(&notify).expect("bind the notify socket");
+    server
+        .set_read_timeout(Some(Duration::from_millis(200)))
+        .expect("timeout");
+    let config = dir.join("c.toml");
+    std::fs::write(&config, "[serve]\nstatus_interval_ms = 100\n").expect("config");
+    let mut child = serve(dir, &dump(), "realtime")
+        .arg("--config")
+        .arg(&config)
+        .env("NOTIFY_SOCKET", &notify)
+        .env("WATCHDOG_USEC", "1000000")
+        .env_remove("WATCHDOG_PID")
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("spawn serve");
+    let mut messages = Vec::new();
+    let mut buf = [0u8; 4096];
+    let t = Instant::now();
+    loop {
+        if let Ok(n) = server.recv(&mut buf) {
+            messages.push(String::from_utf8_lossy(&buf[..n]).into_owned());
+        }
+        if child.try_wait().expect("wait").is_some() {
+            while let Ok(n) = server.recv(&mut buf) {
+                messages.push(String::from_utf8_lossy(&buf[..n]).into_owned());
+            }
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "serve did not finish"
+        );
+    }
+    let first = |m: &str| messages.iter().position(|x| x == m);
+    let ready = first("READY=1").expect("READY=1 sent");
+    assert!(messages
+        .iter()
+        .any(|m| m.starts_with("STATUS=") && m.contains("frames")));
+    assert!(
+        first("WATCHDOG=1").is_some(),
+        "no watchdog ping: {messages:?}"
+    );
+    let stopping = first("STOPPING=1").expect("STOPPING=1 sent");
+    assert!(ready < stopping);
+}
