@@ -8,17 +8,22 @@ use crossline::cloud::ScaleMode;
 use crossline::compare::{evaluate_against_truth, TruthParams};
 use crossline::config::Config;
 use crossline::reconstruct::{self, PlaneSource};
-use crossline::simulate::{builtin_scene, load_sim_dir, write_sim_dir, SimParams, Simulator};
+use crossline::simulate::{
+    builtin_scene, load_sim_dir, write_sim_dir_as, FrameFormat, SimParams, Simulator,
+};
 
 /// Simulate a scan of a built-in scene, reconstruct it with no knowledge of the
-/// projector, and measure the cloud against the simulator's ground truth.
+/// projector, measure the cloud against the simulator's ground truth, then replay the
+/// same recording through the live daemon.
 ///
-/// Writes DIR/sim/ (the simulated frames and truth), DIR/cloud.ply, DIR/report.json.
-/// The same steps by hand:
+/// Writes DIR/sim/ (the simulated recording, `frames.dump`, as an MJPEG camera would
+/// deliver it, and the truth), DIR/cloud.ply, DIR/report.json, and DIR/live/ (the
+/// daemon's cloud and report). The same steps by hand:
 ///
-///   crossline simulate --scene room --frames 200 --out DIR/sim
-///   crossline reconstruct --input DIR/sim --camera DIR/sim/camera.yml --out DIR/cloud.ply
+///   crossline simulate --scene room --frames 200 --format dump --out DIR/sim
+///   crossline reconstruct --input DIR/sim/frames.dump --camera DIR/sim/camera.yml --out DIR/cloud.ply
 ///   crossline compare DIR/cloud.ply --truth DIR/sim
+///   crossline serve --replay DIR/sim/frames.dump --rate max --camera DIR/sim/camera.yml --out-dir DIR/live
 #[derive(clap::Args)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
@@ -53,19 +58,26 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         },
     )?;
     println!(
-        "1/3 simulating {} frames of `{}` into {}",
+        "1/4 simulating {} frames of `{}` into {}",
         args.frames,
         args.scene,
         sim_dir.display()
     );
     let bar = crate::reconstruct::progress_bar(args.frames as u64);
-    write_sim_dir(&sim, args.frames, &sim_dir, |n| bar.set_position(n as u64))
-        .with_context(|| format!("writing the simulation to {}", sim_dir.display()))?;
+    write_sim_dir_as(
+        &sim,
+        args.frames,
+        &sim_dir,
+        FrameFormat::Dump { quality: 95 },
+        |n| bar.set_position(n as u64),
+    )
+    .with_context(|| format!("writing the simulation to {}", sim_dir.display()))?;
     bar.finish_and_clear();
 
-    println!("2/3 reconstructing without knowledge of the projector");
+    println!("2/4 reconstructing without knowledge of the projector");
     let camera = crossline::camera_file::load(&sim_dir.join("camera.yml"))?;
-    let frames = reconstruct::FrameSource::Files(reconstruct::list_frames(&sim_dir)?);
+    let dump = sim_dir.join("frames.dump");
+    let (frames, _) = reconstruct::FrameSource::open(&dump)?;
     let bar = crate::reconstruct::progress_bar(frames.len() as u64);
     let rec = reconstruct::reconstruct_files(
         &frames,
@@ -81,7 +93,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     crate::reconstruct::write_outputs(&rec, &cloud_path, Some(&args.out.join("report.json")))?;
     crate::reconstruct::print_summary(&rec);
 
-    println!("3/3 comparing with the simulator's ground truth");
+    println!("3/4 comparing with the simulator's ground truth");
     let truth = load_sim_dir(&sim_dir)?;
     let report = evaluate_against_truth(&rec.cloud.points, &truth, &TruthParams::default())?;
     let e = &report.relative_error;
@@ -101,6 +113,43 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         "cloud: {} ({} points; open it in CloudCompare, MeshLab or Open3D)",
         cloud_path.display(),
         rec.cloud.len()
+    );
+
+    println!("4/4 replaying the recording through the live daemon (crossline serve)");
+    let live = args.out.join("live");
+    let _ = std::fs::remove_dir_all(&live);
+    let mut config = Config::default();
+    config.serve.status_socket.clear();
+    config.serve.stream_tcp.clear();
+    let source = crossline::capture::replay::ReplaySource::open(
+        &dump,
+        crossline::capture::replay::Rate::Max,
+    )?;
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let served = crossline::serve::run(
+        Box::new(source),
+        crossline::serve::ServeOptions {
+            camera,
+            config,
+            scale: ScaleMode::MedianDepth,
+            out_dir: live.clone(),
+            cloud_path: Some(live.join("cloud.ply")),
+            report_path: Some(live.join("report.json")),
+            input_id: format!("demo:{}", dump.display()),
+            record: false,
+        },
+        stop,
+    )?;
+    let live_cloud = crossline::ply::read_ply(&served.cloud)?;
+    let live_eval = evaluate_against_truth(&live_cloud.points, &truth, &TruthParams::default())?;
+    println!(
+        "daemon: {} frames, {} epochs of the growing cloud, final cloud {} ({} points): median {:.3} %, coverage {:.1} %",
+        served.frames_processed,
+        served.epochs,
+        served.cloud.display(),
+        served.points,
+        100.0 * live_eval.relative_error.median,
+        100.0 * live_eval.coverage.fraction
     );
     Ok(ExitCode::SUCCESS)
 }
