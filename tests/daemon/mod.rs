@@ -190,7 +190,8 @@ fn stuck_client_does_not_stop_the_pipeline() {
         "[serve]\nclient_queue_mib = 0\ndrain_timeout_s = 1.0\n",
     )
     .expect("config");
-    let mut child = serve(dir, &dump(), "max")
+    // Real time, so that the client is surely connected before the cloud flows.
+    let mut child = serve(dir, &dump(), "realtime")
         .arg("--config")
         .arg(&config)
         .stderr(Stdio::null())
