@@ -12,7 +12,9 @@
 //!   of the current epoch.
 //! - When the planes have grown by a factor (`solve_growth`) since the last global
 //!   solve, the global solution is re-estimated on the background thread over
-//!   everything so far, while new frames keep being placed with the old one. The new
+//!   everything so far, warm-started from the current epoch (its residuals give the
+//!   first robust weights instead of a fresh consensus search, [`solve::solve_warm`]),
+//!   while new frames keep being placed with the old one. The new
 //!   solution, extended over the planes that arrived meanwhile, is the next epoch: its
 //!   whole cloud is sent again.
 //! - At the end, [`Incremental::finish`] runs the offline pipeline's final stages over
@@ -34,7 +36,7 @@ use crate::intersect::{Crossing, SegmentIndex};
 use crate::ply::Cloud;
 use crate::reconstruct::{self, PlaneCurves, PlaneSource, ReconstructError, Reconstruction};
 use crate::solve::extend::{fit_plane, FitContext};
-use crate::solve::{self, Problem, Solution, SolveError};
+use crate::solve::{self, Problem, Solution, SolveError, WarmStart};
 
 use super::stream::{self, EpochReason, Point};
 
@@ -239,6 +241,9 @@ impl Incremental {
         let partner = self.partner.clone();
         let params = self.config.solve.clone();
         let focal_px = self.camera.fx.max(self.camera.fy);
+        // Warm start from the current epoch's planes.
+        let warm: Option<Vec<Option<Vector3<f64>>>> =
+            self.solution.as_ref().map(|s| s.planes_given.clone());
         let (tx, rx) = bounded(1);
         let spawned = std::thread::Builder::new()
             .name("solver-epoch".into())
@@ -250,7 +255,8 @@ impl Incremental {
                     partner: &partner,
                     focal_px,
                 };
-                let _ = tx.send(solve::solve(&problem, &params));
+                let warm = warm.as_deref().map(|planes| WarmStart { planes });
+                let _ = tx.send(solve::solve_warm(&problem, &params, warm.as_ref()));
             });
         match spawned {
             Ok(_) => self.pending = Some((rx, n)),
