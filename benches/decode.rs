@@ -4,7 +4,9 @@
 //! `cargo bench --bench decode` prints the time per frame.
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use crossline::camera::Camera;
 use crossline::capture::dump::{decode_rgb, DumpHeader};
+use crossline::extract::{Background, ExtractParams, Extractor};
 use image::RgbImage;
 
 const W: u32 = 1920;
@@ -65,6 +67,18 @@ fn bench(c: &mut Criterion) {
     let yuyv_header = header(b"YUYV", 2 * W);
     c.bench_function("decode YUYV 1080p to RGB", |b| {
         b.iter(|| decode_rgb(&yuyv_header, &raw).expect("decode"))
+    });
+    // A laser-free YUYV frame against its own background: what the daemon spends on
+    // the frame's pixels outside the stripes, whole conversion plus extraction versus
+    // extraction straight from YUYV.
+    let camera = Camera::with_fov(W, H, 1.0);
+    let bg = Background::from_image(decode_rgb(&yuyv_header, &raw).expect("decode"));
+    let mut ex = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
+    c.bench_function("YUYV 1080p: decode to RGB, then extract", |b| {
+        b.iter(|| ex.extract(&decode_rgb(&yuyv_header, &raw).expect("decode"), &bg))
+    });
+    c.bench_function("YUYV 1080p: extract straight from YUYV", |b| {
+        b.iter(|| ex.extract_yuyv(&raw, 2 * W as usize, &bg).expect("yuyv"))
     });
 }
 

@@ -567,7 +567,7 @@ fn packed_stride(header: &DumpHeader, bytes_per_pixel: usize, len: usize) -> Res
 /// coefficients ×256: 1.164 → 298, 1.596 → 409, 0.392 → 100, 0.813 → 208, 2.017 →
 /// 516): a 1080p frame in a few milliseconds where the per-sample float version took
 /// 26 (`cargo bench --bench decode`). Within one grey level of the float formula.
-fn yuyv_row_to_rgb(src: &[u8], dst: &mut [u8]) {
+pub fn yuyv_row_to_rgb(src: &[u8], dst: &mut [u8]) {
     let clamp = |v: i32| (v >> 8).clamp(0, 255) as u8;
     for (quad, px) in src.chunks_exact(4).zip(dst.chunks_exact_mut(6)) {
         let (d, e) = (i32::from(quad[1]) - 128, i32::from(quad[3]) - 128);

@@ -61,6 +61,7 @@ pub mod background;
 pub mod colour;
 mod detect;
 mod link;
+pub mod yuyv;
 
 use std::path::Path;
 
@@ -351,6 +352,8 @@ pub struct Extractor {
     /// No lens distortion: points skip the (per-point allocating) undistortion.
     undistorted_camera: bool,
     stats: ExtractStats,
+    /// The background in YUV and the scratch frame of [`Self::extract_yuyv`].
+    yuv: Option<yuyv::BackgroundYuv>,
 }
 
 impl Extractor {
@@ -387,6 +390,7 @@ impl Extractor {
             detector,
             linker: Linker::default(),
             stats: ExtractStats::default(),
+            yuv: None,
         })
     }
 

@@ -1020,6 +1020,33 @@ fn worker_loop(
             Recv::Closed => break,
         };
         let meta = slot.meta;
+        // YUYV once the background is known: straight from the buffer, RGB only where
+        // a stripe can be.
+        if &header.fourcc == b"YUYV" {
+            if let Some(bg) = warmup.background() {
+                let stride = if header.bytes_per_line > 0 {
+                    header.bytes_per_line as usize
+                } else {
+                    2 * header.width as usize
+                };
+                let curves = match extractor.extract_yuyv(&slot.bytes, stride, &bg) {
+                    Ok(c) => {
+                        shared.frames_decoded.fetch_add(1, Ordering::Relaxed);
+                        c
+                    }
+                    Err(e) => {
+                        tracing::warn!(frame = meta.index, "cannot use YUYV frame: {e}");
+                        shared.decode_errors.fetch_add(1, Ordering::Relaxed);
+                        Vec::new()
+                    }
+                };
+                drop(slot);
+                if !send(meta, curves) {
+                    return;
+                }
+                continue;
+            }
+        }
         let image = match decode_rgb(header, &slot.bytes) {
             Ok(img) if img.dimensions() == (camera.width, camera.height) => Some(img),
             Ok(img) => {

@@ -1,0 +1,289 @@
+//! Extraction straight from YUYV buffers, converting to RGB only where a stripe can
+//! be.
+//!
+//! The colour classes are a look-up on the RGB difference to the background, so the
+//! detector needs RGB where a laser may be; elsewhere the conversion is wasted. A cheap
+//! test on the YUV difference to the background (kept in YUV once per background)
+//! finds the tiles where some RGB channel could rise by about `min_value`; those
+//! tiles and a margin of [`MARGIN_TILES`] are converted into a scratch RGB frame whose
+//! other tiles hold the background, so the unchanged RGB pipeline sees exactly the
+//! frame's pixels wherever it looks and a zero difference elsewhere. Tiles converted
+//! for the previous frame are set back to the background first.
+
+use image::RgbImage;
+
+use super::{Background, Curve, ExtractError, Extractor};
+use crate::capture::dump::yuyv_row_to_rgb;
+
+/// Tiles around a candidate tile that are converted too: the detector's kernels and
+/// the white-tile growth reach one tile beyond an active tile.
+pub const MARGIN_TILES: usize = 2;
+
+/// Grey levels the background's round trip RGB → YUV → RGB may be off by.
+const ROUND_TRIP_MARGIN: u8 = 4;
+
+/// The background in YUV (BT.601, limited range), per pixel luma and per pixel pair
+/// chroma, as a YUYV camera would deliver it.
+pub(super) struct BackgroundYuv {
+    key: (usize, usize, u64),
+    luma: Vec<u8>,
+    /// (U, V) per pixel pair.
+    chroma: Vec<[u8; 2]>,
+    /// The RGB frame handed to the RGB pipeline; background outside converted tiles.
+    scratch: RgbImage,
+    /// Per tile: converted from the current frame (to be restored next time).
+    converted: Vec<bool>,
+    candidate: Vec<bool>,
+}
+
+/// Identifies a background image's content cheaply: its buffer and a sparse checksum.
+fn key_of(img: &RgbImage) -> (usize, usize, u64) {
+    let raw = img.as_raw();
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for b in raw.iter().step_by(997) {
+        h = (h ^ u64::from(*b)).wrapping_mul(0x100_0000_01b3);
+    }
+    (raw.as_ptr() as usize, raw.len(), h)
+}
+
+fn to_yuv(p: &[u8]) -> (i32, i32, i32) {
+    let (r, g, b) = (i32::from(p[0]), i32::from(p[1]), i32::from(p[2]));
+    (
+        16 + ((66 * r + 129 * g + 25 * b + 128) >> 8),
+        128 + ((-38 * r - 74 * g + 112 * b + 128) >> 8),
+        128 + ((112 * r - 94 * g - 18 * b + 128) >> 8),
+    )
+}
+
+impl BackgroundYuv {
+    fn new(bg: &RgbImage, tiles: usize) -> Self {
+        let (w, h) = (bg.width() as usize, bg.height() as usize);
+        let mut luma = Vec::with_capacity(w * h);
+        let mut chroma = Vec::with_capacity(w.div_ceil(2) * h);
+        for row in bg.as_raw().chunks_exact(3 * w) {
+            for pair in row.chunks(6) {
+                let (y0, u0, v0) = to_yuv(&pair[..3]);
+                let (y1, u1, v1) = if pair.len() == 6 {
+                    to_yuv(&pair[3..])
+                } else {
+                    (y0, u0, v0)
+                };
+                luma.push(y0.clamp(0, 255) as u8);
+                if pair.len() == 6 {
+                    luma.push(y1.clamp(0, 255) as u8);
+                }
+                chroma.push([
+                    ((u0 + u1 + 1) / 2).clamp(0, 255) as u8,
+                    ((v0 + v1 + 1) / 2).clamp(0, 255) as u8,
+                ]);
+            }
+        }
+        Self {
+            key: key_of(bg),
+            luma,
+            chroma,
+            scratch: bg.clone(),
+            converted: vec![false; tiles],
+            candidate: vec![false; tiles],
+        }
+    }
+}
+
+impl Extractor {
+    /// The curves of a YUYV frame (`stride` bytes per row) against `background`, with
+    /// RGB made only where a stripe can be (see the module docs). Gives the same curves
+    /// as [`Self::extract`] on the frame converted whole.
+    pub fn extract_yuyv(
+        &mut self,
+        yuyv: &[u8],
+        stride: usize,
+        background: &Background,
+    ) -> Result<Vec<Curve>, ExtractError> {
+        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
+        let bg = background.image();
+        if bg.dimensions() != (self.camera.width, self.camera.height) {
+            return Err(ExtractError::Size {
+                what: "background",
+                width: self.camera.width,
+                height: self.camera.height,
+                got_width: bg.width(),
+                got_height: bg.height(),
+            });
+        }
+        if w % 2 != 0 || stride < 2 * w || yuyv.len() < stride * (h - 1) + 2 * w {
+            return Err(ExtractError::Size {
+                what: "YUYV frame",
+                width: self.camera.width,
+                height: self.camera.height,
+                got_width: (stride / 2) as u32,
+                got_height: (yuyv.len() / stride.max(1)) as u32,
+            });
+        }
+        let (tile, tiles_x, tiles_y) = (
+            self.detector.tile,
+            self.detector.tiles_x,
+            self.detector.tiles_y,
+        );
+        let stale = self.yuv.as_ref().is_none_or(|y| y.key != key_of(bg));
+        if stale {
+            self.yuv = Some(BackgroundYuv::new(bg, tiles_x * tiles_y));
+        }
+        let Some(yuv) = self.yuv.as_mut() else {
+            return Ok(Vec::new());
+        };
+        // 1. Candidate tiles: where some RGB channel of the difference to the
+        //    background, from the YUV difference by the conversion's linear map, rises
+        //    by min_value less a margin for the background's round trip through YUV.
+        //    Clamping to 0..255 only ever lowers the real rise, so this misses nothing.
+        let limit = 256
+            * i32::from(
+                self.params
+                    .min_value
+                    .saturating_sub(ROUND_TRIP_MARGIN)
+                    .max(1),
+            );
+        yuv.candidate.fill(false);
+        for y in 0..h {
+            let row = &yuyv[y * stride..y * stride + 2 * w];
+            let (bl, bc) = (
+                &yuv.luma[y * w..(y + 1) * w],
+                &yuv.chroma[y * (w / 2)..(y + 1) * (w / 2)],
+            );
+            let trow = (y / tile) * tiles_x;
+            for (tx, chunk) in row.chunks(2 * tile).enumerate() {
+                let t = trow + tx;
+                if yuv.candidate[t] {
+                    continue;
+                }
+                let x0 = tx * tile;
+                for (k, quad) in chunk.chunks_exact(4).enumerate() {
+                    let px = x0 + 2 * k;
+                    let [bu, bv] = bc[px / 2];
+                    let du = i32::from(quad[1]) - i32::from(bu);
+                    let dv = i32::from(quad[3]) - i32::from(bv);
+                    let dy = (298 * (i32::from(quad[0]) - i32::from(bl[px])))
+                        .max(298 * (i32::from(quad[2]) - i32::from(bl[px + 1])));
+                    let rise = (dy + 409 * dv)
+                        .max(dy - 100 * du - 208 * dv)
+                        .max(dy + 516 * du);
+                    if rise >= limit {
+                        yuv.candidate[t] = true;
+                        break;
+                    }
+                }
+            }
+        }
+        // 2. Grow by the margin; restore last frame's tiles; convert this frame's.
+        let mut want = vec![false; tiles_x * tiles_y];
+        for (t, _) in yuv.candidate.iter().enumerate().filter(|(_, c)| **c) {
+            let (tx, ty) = (t % tiles_x, t / tiles_x);
+            for yy in ty.saturating_sub(MARGIN_TILES)..(ty + MARGIN_TILES + 1).min(tiles_y) {
+                for xx in tx.saturating_sub(MARGIN_TILES)..(tx + MARGIN_TILES + 1).min(tiles_x) {
+                    want[yy * tiles_x + xx] = true;
+                }
+            }
+        }
+        let bg_raw = bg.as_raw();
+        let scratch: &mut [u8] = &mut yuv.scratch;
+        for (t, (&wanted, &was)) in want.iter().zip(&yuv.converted).enumerate() {
+            if !(wanted || was) {
+                continue;
+            }
+            let (tx, ty) = (t % tiles_x, t / tiles_x);
+            let (x0, x1) = (tx * tile, ((tx + 1) * tile).min(w));
+            // Even start and end: YUYV pairs share their chroma.
+            let (x0, x1) = (x0 & !1, (x1 + 1).min(w) & !1);
+            for y in ty * tile..((ty + 1) * tile).min(h) {
+                let dst = &mut scratch[3 * (y * w + x0)..3 * (y * w + x1)];
+                if wanted {
+                    yuyv_row_to_rgb(&yuyv[y * stride + 2 * x0..y * stride + 2 * x1], dst);
+                } else {
+                    dst.copy_from_slice(&bg_raw[3 * (y * w + x0)..3 * (y * w + x1)]);
+                }
+            }
+        }
+        yuv.converted = want;
+        // 3. The RGB pipeline on the scratch frame. It is taken out for the call so
+        //    that the extractor can be borrowed mutably.
+        let frame = std::mem::take(&mut yuv.scratch);
+        let out = self.try_extract(&frame, background);
+        if let Some(yuv) = self.yuv.as_mut() {
+            yuv.scratch = frame;
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::capture::dump::{decode_rgb, DumpHeader};
+    use crate::extract::ExtractParams;
+    use crate::simulate::{builtin_scene, SimParams, Simulator};
+
+    /// YUYV from RGB (BT.601 limited range, chroma of each pair averaged), as a
+    /// camera delivers it.
+    fn yuyv_of(img: &RgbImage) -> Vec<u8> {
+        let mut out = Vec::with_capacity(img.as_raw().len() / 3 * 2);
+        for row in img.as_raw().chunks_exact(3 * img.width() as usize) {
+            for pair in row.chunks_exact(6) {
+                let (y0, u0, v0) = to_yuv(&pair[..3]);
+                let (y1, u1, v1) = to_yuv(&pair[3..]);
+                let c = |x: i32| x.clamp(0, 255) as u8;
+                out.extend_from_slice(&[c(y0), c((u0 + u1 + 1) / 2), c(y1), c((v0 + v1 + 1) / 2)]);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn yuyv_extraction_equals_extraction_of_the_whole_converted_frame() {
+        let spec = builtin_scene("bricks")
+            .expect("scene")
+            .with_resolution(480, 270);
+        let sim = Simulator::new(
+            &spec,
+            &SimParams {
+                seed: 4,
+                ..SimParams::default()
+            },
+        )
+        .expect("simulator");
+        let camera = sim.camera().clone();
+        let header = DumpHeader {
+            fourcc: *b"YUYV",
+            width: camera.width,
+            height: camera.height,
+            bytes_per_line: 2 * camera.width,
+            interval_num: 1,
+            interval_den: 30,
+            device: "test".into(),
+            card: "test".into(),
+        };
+        // The background as the camera sees it: through YUYV too.
+        let bg_yuyv = yuyv_of(&sim.background());
+        let background = Background::from_image(decode_rgb(&header, &bg_yuyv).expect("bg"));
+        let mut whole = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
+        let mut direct = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
+        let mut total = 0;
+        for i in [3, 20, 41, 42, 77] {
+            let (frame, _) = sim.render_frame(i);
+            let yuyv = yuyv_of(&frame);
+            let rgb = decode_rgb(&header, &yuyv).expect("decode");
+            let a = whole.extract(&rgb, &background);
+            let b = direct
+                .extract_yuyv(&yuyv, 2 * camera.width as usize, &background)
+                .expect("yuyv");
+            assert_eq!(a, b, "frame {i}");
+            total += a.len();
+        }
+        assert!(total >= 5, "the frames hold curves ({total})");
+        // Only part of the frame was converted.
+        let converted = direct
+            .yuv
+            .as_ref()
+            .map_or(0, |y| y.converted.iter().filter(|c| **c).count());
+        let tiles = direct.detector.tiles_x * direct.detector.tiles_y;
+        assert!(converted < tiles, "{converted} of {tiles} tiles converted");
+    }
+}
