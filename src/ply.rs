@@ -600,6 +600,18 @@ fn read_vertices<R: BufRead>(
     Ok(cloud)
 }
 
+/// [`write_ply`] to a temporary file beside `path`, then renamed over it: readers of
+/// `path` (a viewer reloading a growing scan) only ever see a whole cloud, and a crash
+/// leaves the previous one.
+pub fn write_ply_atomic(path: &Path, cloud: &Cloud, comments: &[String]) -> Result<(), PlyError> {
+    let tmp = path.with_extension("ply.tmp");
+    write_ply(&tmp, cloud, comments)?;
+    std::fs::rename(&tmp, path).map_err(|source| PlyError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
 /// Writes `cloud` as binary little-endian PLY; `comments` become header comment lines.
 pub fn write_ply(path: &Path, cloud: &Cloud, comments: &[String]) -> Result<(), PlyError> {
     let io = |source| PlyError::Io {

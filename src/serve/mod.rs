@@ -221,6 +221,9 @@ pub const REPORT_VERSION: u32 = 1;
 /// per-pixel work arrays live on the stack, more than the 2 MiB default.
 pub const WORKER_STACK_BYTES: usize = 16 << 20;
 
+/// Locks a mutex of the daemon's shared state. A panic while holding one is a bug
+/// elsewhere; the data (counters, queues of immutable messages) stays consistent, so
+/// carry on with it rather than take the daemon down.
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
 }
@@ -1224,7 +1227,6 @@ fn finish(
             )
         }
     };
-    let tmp = scan.cloud.with_extension("ply.tmp");
     if let Some(dir) = scan.cloud.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|source| ServeError::Io {
             what: "cannot create",
@@ -1237,12 +1239,7 @@ fn finish(
         format!("input {}", opts.input_id),
         "camera frame, OpenCV axes; one global scale (see the report's scale_mode)".to_string(),
     ];
-    crate::ply::write_ply(&tmp, &cloud, &comments)?;
-    std::fs::rename(&tmp, &scan.cloud).map_err(|source| ServeError::Io {
-        what: "cannot write",
-        path: scan.cloud.clone(),
-        source,
-    })?;
+    crate::ply::write_ply_atomic(&scan.cloud, &cloud, &comments)?;
     tracing::info!(
         points = cloud.len(),
         "cloud written to {}",

@@ -37,13 +37,12 @@ pub struct Args {
 }
 
 fn save(f: &Follower, out: &std::path::Path) -> anyhow::Result<()> {
-    let tmp = out.with_extension("ply.tmp");
-    crossline::ply::write_ply(
-        &tmp,
+    crossline::ply::write_ply_atomic(
+        out,
         &f.cloud(),
         &[format!("crossline tail, epoch {}", f.epoch)],
-    )?;
-    std::fs::rename(&tmp, out).with_context(|| format!("writing {}", out.display()))
+    )
+    .with_context(|| format!("saving the cloud to {}", out.display()))
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
