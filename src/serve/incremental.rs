@@ -100,7 +100,8 @@ pub struct Incremental {
     params: IncrementalParams,
     scale: ScaleMode,
     colour: Option<Arc<RgbImage>>,
-    per_frame: Vec<Vec<Curve>>,
+    /// Frames added so far (their curves live in `planes`, once).
+    frames: usize,
     planes: Vec<PlaneCurves>,
     partner: Vec<Option<u32>>,
     index: SegmentIndex,
@@ -134,7 +135,7 @@ impl Incremental {
             params,
             scale,
             colour: None,
-            per_frame: Vec::new(),
+            frames: 0,
             planes: Vec::new(),
             partner: Vec::new(),
             index,
@@ -153,22 +154,22 @@ impl Incremental {
     }
 
     pub fn frames(&self) -> usize {
-        self.per_frame.len()
+        self.frames
     }
 
     /// Adds the curves of the next frame (frames must come in index order).
     pub fn add_frame(&mut self, curves: Vec<Curve>, captured_nanos: u64) -> Output {
-        let frame = self.per_frame.len() as u32;
+        let frame = self.frames as u32;
+        self.frames += 1;
         self.counts.frames += 1;
         self.counts.curves += curves.len() as u64;
         let first_new = self.planes.len();
         let mut by_laser: [Vec<Curve>; 2] = [Vec::new(), Vec::new()];
-        for c in &curves {
+        for c in curves {
             if let Some(slot) = by_laser.get_mut(c.laser as usize) {
-                slot.push(c.clone());
+                slot.push(c);
             }
         }
-        self.per_frame.push(curves);
         for (laser, curves) in by_laser.into_iter().enumerate() {
             if !curves.is_empty() {
                 self.planes
@@ -409,11 +410,21 @@ impl Incremental {
     }
 
     /// The final solve over every curve, exactly as `crossline reconstruct` does it.
+    /// The curves move into it (each is kept once, and this is the end of the scan):
+    /// afterwards no more frames can be added.
     pub fn finish(&mut self) -> Result<Reconstruction, ReconstructError> {
         // A background solve still running is superseded.
         self.pending = None;
+        // Frame by frame, each laser's curves in their order: the same planes, in the
+        // same order, that `reconstruct_curves` makes of the frames' curve lists.
+        let mut per_frame: Vec<Vec<Curve>> = vec![Vec::new(); self.frames];
+        for p in std::mem::take(&mut self.planes) {
+            if let Some(f) = per_frame.get_mut(p.frame as usize) {
+                f.extend(p.curves);
+            }
+        }
         let rec = reconstruct::reconstruct_curves(
-            self.per_frame.clone(),
+            per_frame,
             &self.camera,
             &self.config,
             PlaneSource::SelfCalibrated,
@@ -430,10 +441,5 @@ impl Incremental {
 
     pub fn epoch(&self) -> u32 {
         self.epoch
-    }
-
-    /// Every frame's curves so far (for the final report and checkpoints).
-    pub fn per_frame(&self) -> &[Vec<Curve>] {
-        &self.per_frame
     }
 }
