@@ -61,12 +61,22 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         None => Background::black(frame.width(), frame.height()),
     };
     let camera = match &args.camera {
-        // LEAD: wire the camera file reader here:
-        // Some(path) => crossline::camera_file::load(path).with_context(|| format!("reading camera {}", path.display()))?,
-        Some(path) => bail!(
-            "--camera {}: camera files are not supported by `extract` yet",
-            path.display()
-        ),
+        Some(path) => {
+            let camera = crossline::camera_file::load(path)
+                .with_context(|| format!("loading the camera from {}", path.display()))?;
+            if (camera.width, camera.height) != frame.dimensions() {
+                bail!(
+                    "{} is {}x{}, but the camera file {} is for {}x{}",
+                    args.input.display(),
+                    frame.width(),
+                    frame.height(),
+                    path.display(),
+                    camera.width,
+                    camera.height
+                );
+            }
+            camera
+        }
         None => Camera::with_fov(frame.width(), frame.height(), 60f64.to_radians()),
     };
     let mut extractor = Extractor::new(&params, &camera).context("extraction parameters")?;
@@ -154,6 +164,50 @@ fn draw_overlay(frame: &RgbImage, curves: &[Curve], lasers: &[LaserColour]) -> R
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_camera_file_is_used_and_must_match_the_frame() {
+        let sim = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/sim-bricks");
+        let dir = tempfile::tempdir().expect("tempdir");
+        // Frame 40 of the recorded fixture, as a PNG.
+        let (frames, _) = crossline::reconstruct::FrameSource::open(&sim.join("frames.dump"))
+            .expect("fixture dump");
+        let camera = crossline::camera_file::load(&sim.join("camera.yml")).expect("camera");
+        let frame = dir.path().join("frame.png");
+        frames
+            .decode(40, &camera)
+            .expect("decode")
+            .save(&frame)
+            .expect("png");
+        let args = |camera: PathBuf| Args {
+            input: frame.clone(),
+            background: Some(sim.join("background.png")),
+            camera: Some(camera),
+            config: None,
+            out: dir.path().join("curves.json"),
+            overlay: None,
+            lasers: None,
+            line_width_px: None,
+        };
+        run(args(sim.join("camera.yml"))).expect("extract with the camera file");
+        let file = CurvesFile::load(&dir.path().join("curves.json")).expect("curves file");
+        assert!(!file.curves.is_empty());
+        // Undistorted points come from the file's intrinsics, not a default camera.
+        let c = &file.curves[0];
+        let back = camera.pixel_from_normalized(c.points[0][0], c.points[0][1]);
+        let px = c.points_px[0];
+        assert!(
+            (back[0] - f64::from(px[0])).abs() < 1e-3 && (back[1] - f64::from(px[1])).abs() < 1e-3,
+            "{back:?} vs {px:?}"
+        );
+        // A camera file for another size is refused, naming both.
+        let other = dir.path().join("other.yml");
+        let text = std::fs::read_to_string(sim.join("camera.yml")).expect("camera text");
+        std::fs::write(&other, text.replace("image_width: 480", "image_width: 640"))
+            .expect("write");
+        let err = format!("{:#}", run(args(other)).expect_err("size mismatch"));
+        assert!(err.contains("480x270") && err.contains("640x270"), "{err}");
+    }
 
     #[test]
     fn real_pair_writes_curves_and_overlay() {
