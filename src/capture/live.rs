@@ -40,8 +40,6 @@ pub struct LiveSource {
     state: State,
     /// Frames delivered so far (the source position of the next one).
     count: u64,
-    /// A `Lost` or `Resumed` to report before the next frame.
-    news: Option<Next<'static>>,
     /// The last frame, copied out of the driver's buffer.
     buf: Vec<u8>,
 }
@@ -89,7 +87,6 @@ impl LiveSource {
             params,
             state: State::Streaming(Box::new(stream)),
             count: 0,
-            news: None,
             buf: Vec::new(),
         })
     }
@@ -118,9 +115,6 @@ impl FrameSource for LiveSource {
     }
 
     fn next(&mut self, timeout: Duration) -> Result<Next<'_>, CaptureError> {
-        if let Some(news) = self.news.take() {
-            return Ok(news);
-        }
         if let State::Lost { retry_at, backoff } = self.state {
             let now = Instant::now();
             if now < retry_at {

@@ -66,7 +66,6 @@ struct EpochSolution {
     ctx: FitContext,
     lambda: f64,
     factor: f64,
-    planes_at_solve: usize,
 }
 
 /// Live counters for status.
@@ -302,7 +301,6 @@ impl Incremental {
             ctx,
             lambda,
             factor: 1.0,
-            planes_at_solve: n,
         });
         // Planes that arrived while it ran.
         self.extend(n..self.planes.len());
@@ -356,7 +354,6 @@ impl Incremental {
             }
         }
         self.counts.planes_solved = sol.planes_given.iter().filter(|p| p.is_some()).count() as u64;
-        let _ = sol.planes_at_solve;
     }
 
     /// The cloud of planes `range` with the current solution, scaled by `factor`.

@@ -611,9 +611,9 @@ pub fn run(
     )?;
     // Replay the checkpointed frames into the solver (no sending: nobody listens yet).
     let mut start_position = 0;
-    for f in &resumed.frames {
+    for f in resumed.frames {
         start_position = f.source_position + 1;
-        let _ = solver.add_frame(f.curves.clone(), 0);
+        let _ = solver.add_frame(f.curves, 0);
     }
     shared
         .frames_processed
@@ -780,7 +780,6 @@ pub fn run(
             &feed,
             &shared,
             resumed_frames,
-            &opts,
         );
         workers_stop.store(true, Ordering::Relaxed);
         let outcome = result.and_then(|()| {
@@ -1111,7 +1110,6 @@ fn solver_loop(
     feed: &net::StatusFeed,
     shared: &Shared,
     first_index: u64,
-    opts: &ServeOptions,
 ) -> Result<(), ServeError> {
     let mut pending: BTreeMap<u64, Extracted> = BTreeMap::new();
     let mut next = first_index;
@@ -1184,7 +1182,6 @@ fn solver_loop(
             next += 1;
         }
     }
-    let _ = opts;
     checkpoint.sync()?;
     Ok(())
 }
@@ -1253,7 +1250,6 @@ fn finish(
     ));
     hub.end(cloud.len() as u64);
     *lock(&shared.solver) = solver.counts;
-    let _ = opts;
     Ok((cloud.len(), rec, err))
 }
 
