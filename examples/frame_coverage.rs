@@ -1,7 +1,7 @@
 //! Where does extraction miss the laser? Renders frames of a built-in scene, extracts
 //! their curves, and reports per frame the share of lit pixels (stripe centre lines)
 //! with an extracted point within 2 px; writes `coverage_NNNNNN.png` overlays (missed
-//! lit pixels magenta, extracted points cyan).
+//! lit pixels magenta, extracted points cyan) and the rendered `frame_NNNNNN.png`.
 //!
 //! cargo run --release --example frame_coverage -- room 0 17 42
 
@@ -76,6 +76,7 @@ fn main() -> anyhow::Result<()> {
             }
         }
         out.save(format!("coverage_{index:06}.png"))?;
+        img.save(format!("frame_{index:06}.png"))?;
     }
     Ok(())
 }

@@ -5,8 +5,14 @@
 //! `v · X = 1` lies at depth `Z = 1 / (v · u)` and position `X = Z · u`. The depth is
 //! ill-conditioned where the viewing ray grazes the plane (`v · u → 0` relative to
 //! `|v| |u|`), and meaningless where `v · u ≤ 0` (behind the camera); both are rejected
-//! here. Curves whose planes disagree at their crossings are the solver's business; this
-//! module only triangulates what it is given.
+//! here.
+//!
+//! A curve can also be wrong as a whole while its plane is right: the glow of the laser
+//! sheet in water seen edge-on, a reflection, a stray light of the laser's colour. Its
+//! points then sit on the plane but not on the surface, and the curves it crosses
+//! (which do lie on the surface) disagree with it about the depth at the crossing
+//! pixels. [`inconsistent_curves`] finds such curves from the solved planes and the
+//! crossings, so that their points are left out.
 //!
 //! Self-calibration leaves one global scale open; [`ScaleMode`] says how the user fixes
 //! it, and [`scale_for`] turns that into a factor.
@@ -24,12 +30,20 @@ pub struct TriangulateParams {
     /// Rays closer than this angle to their laser plane are dropped (degrees): their
     /// depth error grows as 1/sin of this angle.
     pub min_ray_plane_angle_deg: f64,
+    /// Two crossing curves disagree when the depths their planes give at the crossing
+    /// differ by more than this share (0.02 = 2 %).
+    pub max_crossing_disagreement: f64,
+    /// A curve is left out when at least this many of its crossings disagree and they
+    /// outnumber those that agree.
+    pub min_disagreeing_crossings: u32,
 }
 
 impl Default for TriangulateParams {
     fn default() -> Self {
         Self {
             min_ray_plane_angle_deg: 0.5,
+            max_crossing_disagreement: 0.02,
+            min_disagreeing_crossings: 2,
         }
     }
 }
@@ -40,6 +54,9 @@ pub struct TriangulateStats {
     pub kept: usize,
     pub grazing: usize,
     pub behind_camera: usize,
+    /// Curves left out because the curves they cross disagree with them, and their points.
+    pub inconsistent_curves: usize,
+    pub inconsistent_points: usize,
 }
 
 impl TriangulateStats {
@@ -47,7 +64,96 @@ impl TriangulateStats {
         self.kept += other.kept;
         self.grazing += other.grazing;
         self.behind_camera += other.behind_camera;
+        self.inconsistent_curves += other.inconsistent_curves;
+        self.inconsistent_points += other.inconsistent_points;
     }
+}
+
+/// A crossing of two curves (ids into the caller's list of curves) at the undistorted
+/// normalised image point `u`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CurveCrossing {
+    pub a: u32,
+    pub b: u32,
+    pub u: [f64; 2],
+}
+
+/// Which curves to leave out: `planes[i]` is the solved plane of curve `i` (`None` when
+/// unsolved). At a crossing both curves see the same ray `u`, so their planes must give
+/// the same depth there, `1 / (v_a · u) = 1 / (v_b · u)`; a crossing whose relative
+/// depth difference exceeds `max_crossing_disagreement` (or where a plane puts the point
+/// behind the camera) is a disagreement.
+///
+/// A disagreement does not say which of the two curves is wrong. A wrong curve
+/// disagrees with most curves it crosses, while each of those disagrees only with it;
+/// so curves are removed greedily, the one with the largest excess of disagreements
+/// over agreements first, and the counts of its partners updated, until no curve has at
+/// least `min_disagreeing_crossings` disagreements outnumbering its agreements. A curve
+/// with no judged crossing is kept: nothing speaks against it.
+pub fn inconsistent_curves(
+    planes: &[Option<Vector3<f64>>],
+    crossings: &[CurveCrossing],
+    params: &TriangulateParams,
+) -> Vec<bool> {
+    let n = planes.len();
+    let mut good = vec![0u32; n];
+    let mut bad = vec![0u32; n];
+    // Judged crossings per curve: (other curve, agrees).
+    let mut judged: Vec<Vec<(u32, bool)>> = vec![Vec::new(); n];
+    for c in crossings {
+        let (a, b) = (c.a as usize, c.b as usize);
+        if a == b || a >= n || b >= n {
+            continue;
+        }
+        let (Some(va), Some(vb)) = (planes[a], planes[b]) else {
+            continue;
+        };
+        let u = Vector3::new(c.u[0], c.u[1], 1.0);
+        let (da, db) = (va.dot(&u), vb.dot(&u));
+        let agrees = da > 0.0
+            && db > 0.0
+            && 2.0 * (da - db).abs() <= params.max_crossing_disagreement * (da + db);
+        for (i, j) in [(a, b), (b, a)] {
+            if agrees {
+                good[i] += 1;
+            } else {
+                bad[i] += 1;
+            }
+            judged[i].push((j as u32, agrees));
+        }
+    }
+    let min_bad = params.min_disagreeing_crossings.max(1);
+    let qualifies = |g: u32, b: u32| b >= min_bad && b > g;
+    let key = |g: u32, b: u32| (b as i64 - g as i64, b);
+    let mut heap: std::collections::BinaryHeap<((i64, u32), std::cmp::Reverse<u32>)> = (0..n)
+        .filter(|&i| qualifies(good[i], bad[i]))
+        .map(|i| (key(good[i], bad[i]), std::cmp::Reverse(i as u32)))
+        .collect();
+    let mut rejected = vec![false; n];
+    while let Some((k, std::cmp::Reverse(i))) = heap.pop() {
+        let i = i as usize;
+        // Stale entries (the counts changed since the push) are skipped; the current
+        // key was pushed too.
+        if rejected[i] || k != key(good[i], bad[i]) || !qualifies(good[i], bad[i]) {
+            continue;
+        }
+        rejected[i] = true;
+        for &(j, agrees) in &judged[i] {
+            let j = j as usize;
+            if rejected[j] {
+                continue;
+            }
+            if agrees {
+                good[j] -= 1;
+            } else {
+                bad[j] -= 1;
+            }
+            if qualifies(good[j], bad[j]) {
+                heap.push((key(good[j], bad[j]), std::cmp::Reverse(j as u32)));
+            }
+        }
+    }
+    rejected
 }
 
 /// Where a ray `u = (x, y, 1)` meets the plane `v · X = 1`, or why it is refused.
@@ -293,6 +399,63 @@ mod tests {
             triangulate(&-v, 0.0, 0.0, 0.0),
             Err(Rejection::BehindCamera)
         );
+    }
+
+    /// Where the planes of curves `a` and `b` meet on the image row through `x`.
+    fn agreeing(planes: &[Option<Vector3<f64>>], a: u32, b: u32, x: f64) -> CurveCrossing {
+        let d = planes[a as usize].expect("solved") - planes[b as usize].expect("solved");
+        CurveCrossing {
+            a,
+            b,
+            u: [x, -(d.z + d.x * x) / d.y],
+        }
+    }
+
+    #[test]
+    fn a_curve_off_its_surface_is_found_by_the_curves_it_crosses() {
+        // Six curves on planes of a 1-unit-deep scene; curve 5 is the glow of its sheet
+        // in front of the surface: its plane is right, but where it crosses the others
+        // its pixels are not where that plane meets theirs.
+        let planes: Vec<Option<Vector3<f64>>> = (0..6)
+            .map(|i| {
+                let t = i as f64 * 0.3;
+                Some(Vector3::new(t.cos() * 0.4, t.sin() * 0.4, 1.0))
+            })
+            .chain([None])
+            .collect();
+        let mut crossings = Vec::new();
+        for a in 0..5u32 {
+            for b in a + 1..5 {
+                crossings.push(agreeing(&planes, a, b, 0.05 * (a + b) as f64 - 0.2));
+            }
+        }
+        for a in 0..5u32 {
+            let mut c = agreeing(&planes, a, 5, 0.1 * a as f64 - 0.2);
+            c.u[1] += 0.3;
+            crossings.push(c);
+            // Crossings with an unsolved curve are not judged.
+            crossings.push(CurveCrossing {
+                a,
+                b: 6,
+                u: [0.0, 0.0],
+            });
+        }
+        let params = TriangulateParams::default();
+        let out = inconsistent_curves(&planes, &crossings, &params);
+        assert_eq!(out, [false, false, false, false, false, true, false]);
+
+        // Within the tolerance nothing goes; one disagreement alone is not enough.
+        let loose = TriangulateParams {
+            max_crossing_disagreement: 10.0,
+            ..params.clone()
+        };
+        assert!(!inconsistent_curves(&planes, &crossings, &loose).contains(&true));
+        let few: Vec<CurveCrossing> = crossings
+            .iter()
+            .copied()
+            .filter(|c| c.b != 5 || c.a == 0)
+            .collect();
+        assert!(!inconsistent_curves(&planes, &few, &params).contains(&true));
     }
 
     #[test]

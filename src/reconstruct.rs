@@ -479,10 +479,26 @@ pub fn reconstruct_curves(
         camera.fx.max(camera.fy),
         config.solve.min_sin_angle,
     );
+    // Curves are indexed one by one (global ids in plane order, so `a < b` holds for
+    // their planes too); the solver sees crossings of planes, the consistency check of
+    // the cloud crossings of curves. Curves of one plane do not constrain it.
+    let mut curve_plane: Vec<u32> = Vec::with_capacity(curves_total);
     let mut crossings: Vec<Crossing> = Vec::new();
+    let mut curve_ids: Vec<[u32; 2]> = Vec::new();
+    let mut fresh = Vec::new();
     for (id, plane) in planes.iter().enumerate() {
         for curve in &plane.curves {
-            crossings.extend(index.insert(id as u32, &curve.polyline));
+            let cid = curve_plane.len() as u32;
+            curve_plane.push(id as u32);
+            fresh.clear();
+            index.insert_into(cid, &curve.polyline, &mut fresh);
+            for c in &fresh {
+                let (pa, pb) = (curve_plane[c.a as usize], curve_plane[c.b as usize]);
+                if pa != pb {
+                    crossings.push(Crossing { a: pa, b: pb, ..*c });
+                    curve_ids.push([c.a, c.b]);
+                }
+            }
         }
     }
     let radius = config.intersect.refine_radius_px / camera.fx.max(camera.fy);
@@ -544,11 +560,30 @@ pub fn reconstruct_curves(
     };
     let mut pixels: Vec<[f32; 2]> = Vec::new();
     let mut stats = TriangulateStats::default();
+    let curve_planes: Vec<Option<Vector3<f64>>> = curve_plane
+        .iter()
+        .map(|&p| solution.planes.get(p as usize).copied().flatten())
+        .collect();
+    let curve_crossings: Vec<cloud::CurveCrossing> = crossings
+        .iter()
+        .zip(&curve_ids)
+        .map(|(c, &[a, b])| cloud::CurveCrossing { a, b, u: c.u })
+        .collect();
+    let inconsistent =
+        cloud::inconsistent_curves(&curve_planes, &curve_crossings, &config.triangulate);
+    let mut cid = 0;
     for (id, plane) in planes.iter().enumerate() {
+        let first = cid;
+        cid += plane.curves.len();
         let Some(v) = solution.planes.get(id).copied().flatten() else {
             continue;
         };
-        for curve in &plane.curves {
+        for (k, curve) in plane.curves.iter().enumerate() {
+            if inconsistent[first + k] {
+                stats.inconsistent_curves += 1;
+                stats.inconsistent_points += curve.points.len();
+                continue;
+            }
             stats.add(&cloud::push_curve(
                 &mut cloud,
                 Some(&mut pixels),
