@@ -89,10 +89,13 @@ pub struct CurveCrossing {
 /// so curves are removed greedily, the one with the largest excess of disagreements
 /// over agreements first, and the counts of its partners updated, until no curve has at
 /// least `min_disagreeing_crossings` disagreements outnumbering its agreements. A curve
-/// with no judged crossing is kept: nothing speaks against it.
+/// with no judged crossing is kept, nothing speaks against it, unless `needs_support`
+/// marks it (a faint curve, which could be glow or a reflection just as well): such a
+/// curve must end with at least one agreeing crossing.
 pub fn inconsistent_curves(
     planes: &[Option<Vector3<f64>>],
     crossings: &[CurveCrossing],
+    needs_support: &[bool],
     params: &TriangulateParams,
 ) -> Vec<bool> {
     let n = planes.len();
@@ -151,6 +154,11 @@ pub fn inconsistent_curves(
             if qualifies(good[j], bad[j]) {
                 heap.push((key(good[j], bad[j]), std::cmp::Reverse(j as u32)));
             }
+        }
+    }
+    for (i, r) in rejected.iter_mut().enumerate() {
+        if needs_support.get(i).copied().unwrap_or(false) && good[i] == 0 {
+            *r = true;
         }
     }
     rejected
@@ -441,21 +449,28 @@ mod tests {
             });
         }
         let params = TriangulateParams::default();
-        let out = inconsistent_curves(&planes, &crossings, &params);
+        let out = inconsistent_curves(&planes, &crossings, &[], &params);
         assert_eq!(out, [false, false, false, false, false, true, false]);
+        // A faint curve needs an agreeing crossing: curve 6 has none (its only
+        // partners are unsolved... it is unsolved itself), curve 0 has several.
+        let mut faint = vec![false; 7];
+        faint[0] = true;
+        faint[6] = true;
+        let out = inconsistent_curves(&planes, &crossings, &faint, &params);
+        assert_eq!(out, [false, false, false, false, false, true, true]);
 
         // Within the tolerance nothing goes; one disagreement alone is not enough.
         let loose = TriangulateParams {
             max_crossing_disagreement: 10.0,
             ..params.clone()
         };
-        assert!(!inconsistent_curves(&planes, &crossings, &loose).contains(&true));
+        assert!(!inconsistent_curves(&planes, &crossings, &[], &loose).contains(&true));
         let few: Vec<CurveCrossing> = crossings
             .iter()
             .copied()
             .filter(|c| c.b != 5 || c.a == 0)
             .collect();
-        assert!(!inconsistent_curves(&planes, &few, &params).contains(&true));
+        assert!(!inconsistent_curves(&planes, &few, &[], &params).contains(&true));
     }
 
     #[test]

@@ -235,6 +235,9 @@ pub struct ReconstructReport {
     pub curves: usize,
     pub planes: usize,
     pub crossings: usize,
+    /// Crossings of two strong curves, which shape the planes
+    /// (`solve.min_curve_strength`).
+    pub crossings_in_solve: usize,
     pub planes_in_global_solve: usize,
     pub planes_solved: usize,
     pub rejected_crossings: usize,
@@ -265,6 +268,12 @@ pub struct Reconstruction {
     pub report: ReconstructReport,
     /// Per plane: the solved plane in the output's (scaled) camera frame.
     pub planes: Vec<Option<Vector3<f64>>>,
+}
+
+/// Whether no point of `curve` reaches `min_strength` (curves read without strengths
+/// count as strong).
+pub(crate) fn is_faint(curve: &Curve, min_strength: f32) -> bool {
+    !curve.strength.is_empty() && !curve.strength.iter().any(|&s| s >= min_strength)
 }
 
 /// One laser of one frame: a plane unknown and the curves that lie on it.
@@ -307,6 +316,16 @@ impl PlaneCurves {
     /// then only the dense points between its two vertices, widened by `radius`, are
     /// searched.
     pub(crate) fn dense_near(&self, u: [f64; 2], radius: f64) -> &[[f64; 2]] {
+        match self.run_near(u, radius) {
+            Some((ci, lo, hi)) => {
+                crate::intersect::dense_run(&self.curves[ci].points[lo..=hi], u, radius)
+            }
+            None => &[],
+        }
+    }
+
+    /// Curve index and the range of its dense points around `u` (see [`Self::dense_near`]).
+    fn run_near(&self, u: [f64; 2], radius: f64) -> Option<(usize, usize, usize)> {
         let mut best: Option<(f64, usize, usize)> = None;
         for (ci, curve) in self.curves.iter().enumerate() {
             for (k, seg) in curve.polyline.windows(2).enumerate() {
@@ -316,12 +335,10 @@ impl PlaneCurves {
                 }
             }
         }
-        let Some((_, ci, k)) = best else {
-            return &[];
-        };
+        let (_, ci, k) = best?;
         let curve = &self.curves[ci];
         if curve.points.is_empty() {
-            return &[];
+            return None;
         }
         let last = curve.points.len() - 1;
         let start = self.vertices[ci].get(k).copied().unwrap_or(0).min(last);
@@ -339,7 +356,7 @@ impl PlaneCurves {
         while hi + 1 < curve.points.len() && d2(&curve.points[hi + 1]) <= r2 {
             hi += 1;
         }
-        crate::intersect::dense_run(&curve.points[lo..=hi], u, radius)
+        Some((ci, lo, hi))
     }
 }
 
@@ -511,12 +528,27 @@ pub fn reconstruct_curves(
             }
         });
     }
+    // The self-calibration sees only the crossings of strong curves: faint ones (no
+    // point reaching `solve.min_curve_strength`) could be glow or reflections just as
+    // well; they are triangulated on the planes the strong ones give.
+    let min_strength = config.solve.min_curve_strength;
+    let faint: Vec<bool> = planes
+        .iter()
+        .flat_map(|p| &p.curves)
+        .map(|c| is_faint(c, min_strength))
+        .collect();
+    let strong: Vec<Crossing> = crossings
+        .iter()
+        .zip(&curve_ids)
+        .filter(|(_, ids)| !faint[ids[0] as usize] && !faint[ids[1] as usize])
+        .map(|(c, _)| *c)
+        .collect();
     times.intersect_s = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
     let problem = Problem {
         num_curves: planes.len(),
-        crossings: &crossings,
+        crossings: &strong,
         partner: &partner,
         focal_px: camera.fx.max(camera.fy),
     };
@@ -569,8 +601,9 @@ pub fn reconstruct_curves(
         .zip(&curve_ids)
         .map(|(c, &[a, b])| cloud::CurveCrossing { a, b, u: c.u })
         .collect();
+    // Faint curves must be confirmed by a crossing that agrees.
     let inconsistent =
-        cloud::inconsistent_curves(&curve_planes, &curve_crossings, &config.triangulate);
+        cloud::inconsistent_curves(&curve_planes, &curve_crossings, &faint, &config.triangulate);
     let mut cid = 0;
     for (id, plane) in planes.iter().enumerate() {
         let first = cid;
@@ -623,6 +656,7 @@ pub fn reconstruct_curves(
         curves: curves_total,
         planes: planes.len(),
         crossings: crossings.len(),
+        crossings_in_solve: strong.len(),
         planes_in_global_solve: solution.global.len(),
         planes_solved: solution.planes.iter().filter(|p| p.is_some()).count(),
         rejected_crossings: solution.rejected_crossings.len(),
@@ -645,4 +679,108 @@ pub fn reconstruct_curves(
         report,
         planes: out_planes,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solve::synthetic::{curve_polyline, random_scan, ScanSpec, Scene};
+
+    /// The image of plane `v` on `scene` as an extracted curve of constant strength.
+    fn curve(camera: &Camera, scene: &Scene, v: &Vector3<f64>, laser: u8, strength: f32) -> Curve {
+        let points = curve_polyline(scene, v, 1.0 / camera.fx).unwrap_or_default();
+        Curve {
+            laser,
+            points_px: points
+                .iter()
+                .map(|p| camera.pixel_from_normalized(p[0], p[1]).map(|c| c as f32))
+                .collect(),
+            strength: vec![strength; points.len()],
+            polyline: points.clone(),
+            points,
+        }
+    }
+
+    #[test]
+    fn faint_and_stray_curves_neither_shape_the_planes_nor_reach_the_cloud() {
+        let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+        let scan = random_scan(&ScanSpec::default());
+        let strong = Config::default().solve.min_curve_strength;
+        let mut per_frame: Vec<Vec<Curve>> = (0..scan.planes.len() / 2)
+            .map(|k| {
+                (0..2)
+                    .map(|l| {
+                        curve(
+                            &camera,
+                            &scan.scene,
+                            &scan.planes[2 * k + l],
+                            l as u8,
+                            2.0 * strong,
+                        )
+                    })
+                    .collect()
+            })
+            .collect();
+        // Frame 10's second laser runs onto a dim surface: the second half of its curve
+        // is found only at low contrast, as a curve of its own, which must be
+        // confirmed by an agreeing crossing, and is.
+        let whole = per_frame[10].pop().expect("two curves");
+        let half = whole.points.len() / 2;
+        let piece = |range: std::ops::Range<usize>, strength: f32| Curve {
+            laser: 1,
+            points: whole.points[range.clone()].to_vec(),
+            points_px: whole.points_px[range.clone()].to_vec(),
+            polyline: whole.points[range.clone()].to_vec(),
+            strength: vec![strength; range.len()],
+        };
+        per_frame[10].push(piece(0..half, 2.0 * strong));
+        per_frame[10].push(piece(half..whole.points.len(), 0.5 * strong));
+        // Frames 3 and 7 carry a stray piece of curve on their first laser's plane that
+        // is not on the surface (the glow of the sheet in front of it): one strong, one
+        // faint.
+        let mut front = scan.scene.clone();
+        for f in &mut front.facets {
+            *f *= 1.4;
+        }
+        for (frame, strength) in [(3, 2.0 * strong), (7, 0.5 * strong)] {
+            let mut stray = curve(&camera, &front, &scan.planes[2 * frame], 0, strength);
+            let third = stray.points.len() / 3;
+            stray.points.truncate(third);
+            stray.points_px.truncate(third);
+            stray.strength.truncate(third);
+            stray.polyline.truncate(third);
+            per_frame[frame].push(stray);
+        }
+
+        let rec = reconstruct_curves(
+            per_frame,
+            &camera,
+            &Config::default(),
+            PlaneSource::SelfCalibrated,
+            &ScaleMode::Factor { factor: 1.0 },
+            None,
+        )
+        .expect("solves");
+        let r = &rec.report;
+        assert_eq!(r.triangulation.inconsistent_curves, 2, "{r:?}");
+        assert!(r.crossings_in_solve < r.crossings);
+        // Every point lies on the surface (up to the one global scale).
+        let scale: Vec<f64> = rec
+            .cloud
+            .points
+            .iter()
+            .map(|p| {
+                let (x, y) = (p[0] as f64 / p[2] as f64, p[1] as f64 / p[2] as f64);
+                scan.scene.inverse_depth(x, y) * p[2] as f64
+            })
+            .collect();
+        let s0 = scale[scale.len() / 2];
+        assert!(scale.iter().all(|s| (s / s0 - 1.0).abs() < 1e-3));
+        let frames = rec.cloud.frames.as_deref().unwrap_or_default();
+        let lasers = rec.cloud.lasers.as_deref().unwrap_or_default();
+        let faint_kept = (0..frames.len())
+            .filter(|&i| frames[i] == 10 && lasers[i] == 1)
+            .count();
+        assert_eq!(faint_kept, whole.points.len());
+    }
 }

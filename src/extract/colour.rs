@@ -97,7 +97,7 @@ pub struct ColourParams {
 impl Default for ColourParams {
     fn default() -> Self {
         Self {
-            min_value: 24,
+            min_value: 16,
             min_saturation: 0.25,
         }
     }

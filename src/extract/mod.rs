@@ -138,8 +138,8 @@ impl Default for ExtractParams {
         Self {
             line_width_px: None,
             sigma_px: None,
-            high_contrast: 40.0,
-            low_contrast: 15.0,
+            high_contrast: 25.0,
+            low_contrast: 10.0,
             min_curve_length_px: 15.0,
             dp_tolerance_px: 0.3,
             max_link_angle_deg: 30.0,

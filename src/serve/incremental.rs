@@ -186,9 +186,13 @@ impl Incremental {
         let radius = self.config.intersect.refine_radius_px / self.camera.fx.max(self.camera.fy);
         let mut fresh = Vec::new();
         for id in first_new..self.planes.len() {
+            // Faint curves do not shape the planes (as in `reconstruct_curves`); their
+            // points wait for the final solve, where a crossing must confirm them.
             for curve in &self.planes[id].curves {
-                self.index
-                    .insert_into(id as u32, &curve.polyline, &mut fresh);
+                if !reconstruct::is_faint(curve, self.config.solve.min_curve_strength) {
+                    self.index
+                        .insert_into(id as u32, &curve.polyline, &mut fresh);
+                }
             }
         }
         let t_refine = std::time::Instant::now();
@@ -376,6 +380,9 @@ impl Incremental {
             let v = Vector3::new(v.x * lambda, v.y * lambda, v.z);
             let plane = &self.planes[id];
             for curve in &plane.curves {
+                if reconstruct::is_faint(curve, self.config.solve.min_curve_strength) {
+                    continue;
+                }
                 cloud::push_curve(
                     &mut cloud,
                     Some(&mut pixels),

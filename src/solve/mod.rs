@@ -120,6 +120,12 @@ pub struct SolveParams {
     /// solved partner) take the turn of the same laser's solved planes at most this
     /// many frames away ([`motion`]); 0 leaves them unsolved.
     pub motion_prior_max_gap: u32,
+    /// Only curves whose strongest point reaches this ridge strength (the stripe's
+    /// contrast, grey levels) shape the planes; fainter ones are triangulated on the
+    /// planes the strong ones give, if a crossing confirms them. Extraction goes lower
+    /// to cover dim surfaces, where faint false ridges (the sheet's glow under water)
+    /// would otherwise pull the planes.
+    pub min_curve_strength: f32,
 }
 
 impl Default for SolveParams {
@@ -137,6 +143,7 @@ impl Default for SolveParams {
             refine_rounds: 2,
             max_outlier_fraction: 0.5,
             motion_prior_max_gap: 3,
+            min_curve_strength: 40.0,
         }
     }
 }
