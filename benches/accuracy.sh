@@ -2,7 +2,8 @@
 # Accuracy evaluation of `crossline reconstruct` on the built-in scenes, self-calibrated
 # and, as the yardstick, with the simulator's true planes (`--true-planes`). Prints per
 # scene the median relative depth error, the share of points off by more than 2 % and
-# the share of the lit image area covered, as `self (true planes)`.
+# the share of the lit image area covered, and of the part of it where the stripe was
+# visible (peak contrast at least 5x the sensor noise), as `self (true planes)`.
 # Targets (issue 3): median <= 0.2 % in air and clear water, <= 0.5 % turbid; < 1 %
 # of points over 2 %; >= 95 % of the lit area.
 #
@@ -24,14 +25,16 @@ CONFIG_ARGS=()
 [ -n "${CONFIG:-}" ] && CONFIG_ARGS=(--config "$CONFIG")
 mkdir -p "$WORK"
 
-# field FILE KEY: the first number after "KEY": in a JSON file (compare's report).
-field() { grep -m1 "\"$2\"" "$1" | sed 's/.*: *\([-0-9.eE+]*\).*/\1/'; }
-coverage() { awk -v c="$(field "$1" covered_lit_pixels)" -v l="$(field "$1" lit_pixels)" \
+# field FILE KEY [N]: the number after the Nth (default first) "KEY": in a JSON file
+# (compare's report).
+field() { grep "\"$2\"" "$1" | sed -n "${3:-1}p" | sed 's/.*: *\([-0-9.eE+]*\).*/\1/'; }
+# coverage FILE [N]: covered share of the lit (N=1) or visible (N=2) pixels.
+coverage() { awk -v c="$(field "$1" covered_lit_pixels "${2:-1}")" -v l="$(field "$1" lit_pixels "${2:-1}")" \
     'BEGIN { printf "%.1f %%", (l > 0 ? 100 * c / l : 0) }'; }
 pct() { awk -v x="$1" -v d="$2" 'BEGIN { printf "%.*f %%", d, 100 * x }'; }
 
-printf '%-8s | %-22s | %-20s | %-20s | %s\n' scene "median error" "points > 2 %" \
-    "lit area covered" "seconds (self)"
+printf '%-8s | %-22s | %-20s | %-20s | %-20s | %s\n' scene "median error" "points > 2 %" \
+    "lit area covered" "visible lit covered" "seconds (self)"
 for scene in $SCENES; do
     case $scene in
         turbid) sim_args=(--scene pipes --turbidity 1.5 --seed 2) ;;
@@ -56,9 +59,10 @@ for scene in $SCENES; do
     done
     s="$WORK/$scene-self-compare.json"
     t="$WORK/$scene-true-compare.json"
-    printf '%-8s | %-22s | %-20s | %-20s | %s\n' "$scene" \
+    printf '%-8s | %-22s | %-20s | %-20s | %-20s | %s\n' "$scene" \
         "$(pct "$(field "$s" median)" 3) ($(pct "$(field "$t" median)" 3))" \
         "$(pct "$(field "$s" outlier_fraction)" 2) ($(pct "$(field "$t" outlier_fraction)" 2))" \
         "$(coverage "$s") ($(coverage "$t"))" \
+        "$(coverage "$s" 2) ($(coverage "$t" 2))" \
         "$secs"
 done

@@ -22,6 +22,12 @@ pub trait GroundTruth: Sync {
     fn true_depth(&self, ray_in_camera: &Vector3<f64>) -> Option<f64>;
     /// Pixels lit by a laser in any frame, row-major, `width × height`.
     fn lit_mask(&self) -> &[bool];
+    /// The lit pixels where the stripe stood clear of the sensor noise in some frame,
+    /// when the truth knows (same layout as [`Self::lit_mask`]). A stripe attenuated
+    /// to nothing (red light after metres of water) is lit, but no camera sees it.
+    fn visible_mask(&self) -> Option<&[bool]> {
+        None
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -69,6 +75,8 @@ pub struct TruthReport {
     /// Statistics of `|s·Z − Z_true| / Z_true` (dimensionless).
     pub relative_error: ErrorStats,
     pub coverage: Coverage,
+    /// Coverage of the visible part of the lit area ([`GroundTruth::visible_mask`]).
+    pub coverage_visible: Option<Coverage>,
     /// Relative error of every input point, `NaN` where there is none (no surface,
     /// invalid); for plots and coloured clouds, not serialised.
     #[serde(skip)]
@@ -90,11 +98,14 @@ pub fn evaluate_against_truth(
     let camera = truth.camera();
     let (w, h) = (camera.width as usize, camera.height as usize);
     let lit = truth.lit_mask();
-    if lit.len() != w * h {
-        return Err(TruthError::MaskSize {
-            expected: w * h,
-            found: lit.len(),
-        });
+    let visible = truth.visible_mask();
+    for mask in std::iter::once(lit).chain(visible) {
+        if mask.len() != w * h {
+            return Err(TruthError::MaskSize {
+                expected: w * h,
+                found: mask.len(),
+            });
+        }
     }
     // (estimated depth, true depth); NaN true depth = no surface, NaN estimate = invalid.
     let depths: Vec<(f64, f64)> = points
@@ -166,6 +177,7 @@ pub fn evaluate_against_truth(
         outlier_fraction,
         relative_error,
         coverage: coverage(points, camera, lit, params.coverage_radius_px),
+        coverage_visible: visible.map(|v| coverage(points, camera, v, params.coverage_radius_px)),
         per_point,
     })
 }
@@ -222,6 +234,10 @@ impl GroundTruth for crate::simulate::SimDir {
     fn lit_mask(&self) -> &[bool] {
         &self.lit
     }
+
+    fn visible_mask(&self) -> Option<&[bool]> {
+        Some(&self.visible)
+    }
 }
 
 #[cfg(test)]
@@ -235,6 +251,8 @@ mod tests {
     struct Analytic {
         camera: Camera,
         lit: Vec<bool>,
+        /// The left half of the band, when given.
+        visible: Option<Vec<bool>>,
     }
 
     impl Analytic {
@@ -258,7 +276,11 @@ mod tests {
             let lit = (0..240 * 320)
                 .map(|i| (100..140).contains(&(i / 320)))
                 .collect();
-            Self { camera, lit }
+            Self {
+                camera,
+                lit,
+                visible: None,
+            }
         }
     }
 
@@ -291,6 +313,10 @@ mod tests {
 
         fn lit_mask(&self) -> &[bool] {
             &self.lit
+        }
+
+        fn visible_mask(&self) -> Option<&[bool]> {
+            self.visible.as_deref()
         }
     }
 
@@ -351,6 +377,20 @@ mod tests {
         assert_eq!(r.coverage.lit_pixels, 40 * 320);
         let f = r.coverage.fraction;
         assert!((0.5..=162.0 / 320.0 + 1e-9).contains(&f), "coverage {f}");
+        assert_eq!(r.coverage_visible, None);
+
+        // Where only the left half of the band was visible, all of that is covered.
+        let mut truth = truth;
+        truth.visible = Some(
+            (0..240 * 320)
+                .map(|i| truth.lit[i] && i % 320 < 160)
+                .collect(),
+        );
+        let r = evaluate_against_truth(&points, &truth, &TruthParams::default()).expect("eval");
+        let v = r.coverage_visible.expect("visible mask given");
+        assert_eq!(v.lit_pixels, 40 * 160);
+        assert_eq!(v.covered_lit_pixels, 40 * 160);
+        assert_eq!(r.coverage.fraction, f);
     }
 
     #[test]
@@ -362,6 +402,12 @@ mod tests {
         let r = evaluate_against_truth(&[p], &truth, &TruthParams::default()).expect("eval");
         assert_eq!(r.coverage.covered_lit_pixels, 0);
         assert_eq!(r.coverage.fraction, 0.0);
+        truth.visible = Some(vec![true; 10]);
+        assert!(matches!(
+            evaluate_against_truth(&[p], &truth, &TruthParams::default()),
+            Err(TruthError::MaskSize { .. })
+        ));
+        truth.visible = None;
         truth.lit.pop();
         assert!(matches!(
             evaluate_against_truth(&[p], &truth, &TruthParams::default()),

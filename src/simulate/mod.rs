@@ -90,7 +90,7 @@
 //! | `scene.toml` | the scene as rendered (overrides applied), re-loadable |
 //! | `truth.json` | [`Truth`]: version, scene, seed, camera, lasers, per-frame projector pose and planes |
 //! | `depth.pfm` | per-pixel Z in camera coordinates, NaN where no surface ([`crate::pfm`]) |
-//! | `lit.png` | 8-bit mask, 255 where an unshadowed stripe centre line inside a fan passed within 0.5 px of the pixel centre in some frame |
+//! | `lit.png` | 8-bit grey: 0 where no unshadowed stripe centre line inside a fan passed within 0.5 px of the pixel centre in any frame; elsewhere the largest peak contrast such a stripe had there (grey levels added to its strongest channel before noise and clipping, clamped to 1..=255). `compare --truth` counts every non-zero pixel as lit, and those of at least 5 × `noise_sigma` as visible. |
 //! | `truth.ply` | one point per pixel that sees a surface, camera coordinates, ambient colour |
 //!
 //! `truth.json` fields: `version` (1), `scene`, `seed`, `medium`, `turbidity`,
@@ -201,6 +201,10 @@ pub struct Truth {
     pub frames: Vec<FrameTruth>,
 }
 
+/// A stripe counts as visible where its peak contrast is at least this many times the
+/// sensor noise's standard deviation: the Rose criterion of detectability.
+pub const VISIBLE_SNR: f64 = 5.0;
+
 /// A simulation folder loaded back.
 pub struct SimDir {
     pub truth: Truth,
@@ -208,6 +212,9 @@ pub struct SimDir {
     pub camera: Camera,
     /// Row-major `width * height`.
     pub lit: Vec<bool>,
+    /// The lit pixels whose stripe peak contrast reached [`VISIBLE_SNR`] times the
+    /// sensor noise in some frame.
+    pub visible: Vec<bool>,
     /// Row-major `width * height` Z, NaN where no surface.
     pub depth: Vec<f32>,
 }
@@ -379,7 +386,9 @@ fn write_dump(
             writer
                 .write_frame(i as u32, timestamp_nanos, 0, &jpeg)
                 .map_err(dump_err)?;
-            lit.iter_mut().zip(&frame_lit).for_each(|(x, y)| *x |= *y);
+            lit.iter_mut()
+                .zip(&frame_lit)
+                .for_each(|(x, y)| *x = (*x).max(*y));
             progress(i + 1);
         }
     }
@@ -450,7 +459,7 @@ pub fn write_sim_dir_as(
             .try_reduce(
                 || vec![0u8; n],
                 |mut a, b| {
-                    a.iter_mut().zip(&b).for_each(|(x, y)| *x |= *y);
+                    a.iter_mut().zip(&b).for_each(|(x, y)| *x = (*x).max(*y));
                     Ok(a)
                 },
             )?
@@ -539,7 +548,15 @@ pub fn load_sim_dir(dir: &Path) -> Result<SimDir, SimError> {
             ),
         });
     }
-    let lit = lit_img.as_raw().iter().map(|&v| v > 127).collect();
+    // Any non-zero value is lit; the value is the stripe's peak contrast (files of
+    // older versions hold 255 only, which reads as visible everywhere).
+    let lit = lit_img.as_raw().iter().map(|&v| v > 0).collect();
+    let floor = (VISIBLE_SNR * truth.noise_sigma).max(1.0);
+    let visible = lit_img
+        .as_raw()
+        .iter()
+        .map(|&v| v as f64 >= floor)
+        .collect();
 
     let p = dir.join("depth.pfm");
     let depth = crate::pfm::read_pfm(&p)?;
@@ -557,6 +574,7 @@ pub fn load_sim_dir(dir: &Path) -> Result<SimDir, SimError> {
         scene,
         camera,
         lit,
+        visible,
         depth: depth.data,
     })
 }

@@ -289,7 +289,8 @@ impl Simulator {
 
     /// Renders frame `index` into `img` (resized if needed). When `lit` is given
     /// (`width * height` entries; ignored otherwise), pixels whose centre lies within
-    /// 0.5 px of an unshadowed stripe centre line inside the fan are set to 255.
+    /// 0.5 px of an unshadowed stripe centre line inside the fan are raised to the
+    /// stripe's peak contrast there (grey levels, 1..=255; see `lit.png`).
     pub fn render_frame_into(
         &self,
         index: usize,
@@ -380,9 +381,12 @@ impl Simulator {
             let mut v = hot.ambient.map(|a| a as f64);
             if let Some(lasers) = lasers {
                 for laser in lasers {
-                    if hot.jf2 >= 0.0 && self.add_stripe(y * w + x, hot, laser, &mut v) {
-                        if let Some(l) = lit_row.as_deref_mut() {
-                            l[x] = 255;
+                    if hot.jf2 >= 0.0 {
+                        let peak = self.add_stripe(y * w + x, hot, laser, &mut v);
+                        if peak > 0.0 {
+                            if let Some(l) = lit_row.as_deref_mut() {
+                                l[x] = l[x].max(peak.round().clamp(1.0, 255.0) as u8);
+                            }
                         }
                     }
                     if let Some(water) = &self.water {
@@ -406,10 +410,12 @@ impl Simulator {
         }
     }
 
-    /// Adds laser `l`'s stripe at pixel `px`; returns whether the pixel centre lies
-    /// within 0.5 px of the lit centre line.
+    /// Adds laser `l`'s stripe at pixel `px`. Where the pixel centre lies within 0.5 px
+    /// of the lit centre line, returns the stripe's peak contrast there (grey levels
+    /// added to its strongest channel at the centre line, before noise and clipping);
+    /// elsewhere 0.
     #[inline]
-    fn add_stripe(&self, i: usize, hot: &Hot, l: &LaserFrame, v: &mut [f64; 3]) -> bool {
+    fn add_stripe(&self, i: usize, hot: &Hot, l: &LaserFrame, v: &mut [f64; 3]) -> f64 {
         let halo2 = self.water.as_ref().map_or(0.0, |w| w.halo2);
         // The sharp stripe is cut at 4σ, the faint forward-scatter halo at 3σ. This first
         // test uses the single-precision copy, with a margin for its rounding.
@@ -418,14 +424,14 @@ impl Simulator {
             l.n.x * hot.p[0] as f64 + l.n.y * hot.p[1] as f64 + l.n.z * hot.p[2] as f64 - l.h;
         let beyond = d_approx.abs() - 1e-6 * hot.range as f64;
         if beyond > 0.0 && beyond * beyond > window2 {
-            return false;
+            return 0.0;
         }
         let px = &self.pixels[i];
         let p = V3::new(px.p[0], px.p[1], px.p[2]);
         let d = l.n.dot(&p) - l.h;
         let d2 = d * d;
         if d2 > window2 {
-            return false;
+            return 0.0;
         }
         let j = &px.j;
         let gu = l.n.x * j[0] as f64 + l.n.y * j[1] as f64 + l.n.z * j[2] as f64;
@@ -436,13 +442,13 @@ impl Simulator {
         let s2h = s2 + g2 * halo2;
         let eh = d2 / (2.0 * s2h);
         if e > 8.0 && (halo2 == 0.0 || eh > 4.5) {
-            return false;
+            return 0.0;
         }
         // Inside the fan and in front of the projector.
         let w = p - l.centre;
         let wa = w.dot(&l.axis);
         if wa <= 0.0 || w.dot(&l.fan_dir).abs() > wa * self.tan_half_fan {
-            return false;
+            return 0.0;
         }
         // The lit side must be the side the camera sees.
         let to_c = l.centre - p;
@@ -453,26 +459,35 @@ impl Simulator {
         );
         let ndc = nrm.dot(&to_c);
         if ndc <= 0.0 {
-            return false;
+            return 0.0;
         }
         if self.scene.occluded(&l.centre, &(p - l.centre), 1.0 - 1e-6) {
-            return false;
+            return 0.0;
         }
         let dist = to_c.norm();
         let cos = ndc / dist;
         let fall = (self.reference_distance / dist).powi(2) * cos;
         let mut profile = (-e).exp();
+        let mut peak_profile = 1.0;
         let mut atten = [1.0; 3];
         if let Some(water) = &self.water {
             let path = dist + hot.range as f64;
             let f = 1.0 - (-water.forward * path).exp();
             profile = (1.0 - f) * profile + f * (s2 / s2h).sqrt() * (-eh).exp();
+            peak_profile = (1.0 - f) + f * (s2 / s2h).sqrt();
             atten = water.transmission(path);
         }
+        let mut peak: f64 = 0.0;
         for c in 0..3 {
-            v[c] += fall * profile * px.refl[c] as f64 * l.colour[c] * atten[c];
+            let gain = fall * px.refl[c] as f64 * l.colour[c] * atten[c];
+            v[c] += gain * profile;
+            peak = peak.max(gain * peak_profile);
         }
-        d2 < 0.25 * g2
+        if d2 < 0.25 * g2 {
+            peak
+        } else {
+            0.0
+        }
     }
 
     /// Distance from the projector to the first surface along laser `k`'s sheet, per

@@ -500,6 +500,32 @@ fn lit_pixels_lie_within_half_a_pixel_of_a_true_curve() {
         }
     }
     assert!(n > 50, "{n} lit pixels");
+
+    // The lit value is the stripe's peak contrast: with no noise, what the frame adds to
+    // the background's strongest channel at a pixel within 0.5 px of the centre line
+    // (a little less off the line, more where the two stripes overlap).
+    let background = sim.background();
+    let (mut close, mut unclipped) = (0, 0);
+    for i in (0..w * h).filter(|&i| lit[i] > 0) {
+        let (f, b) = (
+            &img.as_raw()[3 * i..3 * i + 3],
+            &background.as_raw()[3 * i..3 * i + 3],
+        );
+        if f.iter().any(|&c| c >= 250) {
+            continue;
+        }
+        unclipped += 1;
+        let added = (0..3)
+            .map(|c| f[c] as f64 - b[c] as f64)
+            .fold(0.0, f64::max);
+        let peak = lit[i] as f64;
+        close += usize::from((added - peak).abs() <= 0.3 * peak + 1.0);
+    }
+    assert!(unclipped > 50, "{unclipped} unclipped lit pixels");
+    assert!(
+        close * 10 >= unclipped * 9,
+        "{close} of {unclipped} near their peak"
+    );
 }
 
 #[test]

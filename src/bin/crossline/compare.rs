@@ -433,6 +433,13 @@ fn run_truth(args: &Args, cloud: &Cloud, dir: &Path) -> anyhow::Result<ExitCode>
             r.coverage.lit_pixels,
             r.coverage.radius_px
         );
+        if let Some(v) = &r.coverage_visible {
+            println!(
+                "           {:.2} % of the {} where the stripe was visible (peak >= 5 x noise)",
+                100.0 * v.fraction,
+                v.lit_pixels
+            );
+        }
     }
     if let Some(prefix) = &args.out {
         let r = &full.truth;
