@@ -92,6 +92,11 @@ pub struct ColourParams {
     /// Minimum HSV saturation (0–1) for a hue to mean anything; below it a bright pixel
     /// is [`Class::White`] (stripes saturate to white at their centres).
     pub min_saturation: f32,
+    /// Another laser's colour blocks a laser only from this value up: there it is that
+    /// laser's stripe. Dimmer pixels of its colour (its faint tails, its backscatter
+    /// glow under water) count as weak for every laser, so that the glow of one sheet
+    /// does not punch holes beside the other laser's stripe.
+    pub mask_value: u8,
 }
 
 impl Default for ColourParams {
@@ -99,6 +104,7 @@ impl Default for ColourParams {
         Self {
             min_value: 16,
             min_saturation: 0.25,
+            mask_value: 25,
         }
     }
 }
@@ -126,6 +132,7 @@ pub fn hue_saturation(r: f32, g: f32, b: f32) -> (f32, f32) {
 pub struct ColourLut {
     table: Vec<u8>,
     min_value: u8,
+    mask_value: u8,
 }
 
 impl ColourLut {
@@ -155,6 +162,7 @@ impl ColourLut {
         Self {
             table,
             min_value: params.min_value,
+            mask_value: params.mask_value,
         }
     }
 
@@ -173,9 +181,10 @@ impl ColourLut {
 
     /// Response of laser `laser` to one pixel's difference, and whether the pixel is
     /// another laser's: the difference's HSV value when the pixel is weak, white or of
-    /// that laser's colour; zero on any other colour. So the two stripes of a cross
-    /// stay apart where they cross, and the detector can drop points whose smoothing
-    /// window reaches into the other laser's stripe.
+    /// that laser's colour, or of another laser's colour but below `mask_value`; zero
+    /// on any other colour. So the two stripes of a cross stay apart where they cross,
+    /// and the detector can drop points whose smoothing window reaches into the other
+    /// laser's stripe.
     #[inline]
     pub fn response(&self, laser: u8, dr: u8, dg: u8, db: u8) -> (u8, bool) {
         let v = dr.max(dg).max(db);
@@ -183,6 +192,7 @@ impl ColourLut {
             None => (v, false),
             Some(c) if c == laser || c == Class::White as u8 => (v, false),
             Some(c) if c == Class::Other as u8 => (0, false),
+            Some(_) if v < self.mask_value => (v, false),
             Some(_) => (0, true),
         }
     }
@@ -225,6 +235,10 @@ mod tests {
         assert_eq!(lut.response(1, 250, 250, 240), (250, false));
         assert_eq!(lut.response(1, 10, 5, 3), (10, false));
         assert_eq!(lut.response(1, 20, 30, 200), (0, false));
+        // Green too dim to be green's stripe (its glow) is a weak pixel for red.
+        assert_eq!(lut.classify(5, 20, 8), Some(Class::Laser1 as u8));
+        assert_eq!(lut.response(0, 5, 20, 8), (20, false));
+        assert_eq!(lut.response(0, 5, 25, 8), (0, true));
     }
 
     #[test]

@@ -12,7 +12,10 @@
 //!    from HSV limits ([`colour::ColourLut`]); tiles holding a pixel of laser `k`'s
 //!    colour become active for laser `k`. Laser `k`'s response is the difference's HSV
 //!    value on pixels that are weak, white (desaturated) or of `k`'s colour, and zero on
-//!    the other laser's colour, so the two stripes of the cross stay apart.
+//!    the other laser's colour where that is bright enough to be its stripe
+//!    (`high_contrast`), so the two stripes of the cross stay apart; dimmer pixels of
+//!    the other colour (its sheet's glow under water) count as weak and leave no holes
+//!    beside the stripe.
 //! 2. *Ridges* (per laser, active tiles only): separable Gaussian derivatives, the
 //!    Hessian, its eigenvector across the line, the second-order Taylor offset
 //!    `t = −(n·∇g)/λ` that must stay in the pixel (`|t·n| ≤ 0.5` in both axes), for
@@ -371,6 +374,8 @@ impl Extractor {
             &ColourParams {
                 min_value: params.min_value,
                 min_saturation: params.min_saturation,
+                // The other laser blocks where it is bright enough to start a curve.
+                mask_value: params.high_contrast.round().clamp(1.0, 255.0) as u8,
             },
         );
         let detector = Detector::new(
