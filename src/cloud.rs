@@ -54,8 +54,10 @@ pub struct TriangulateStats {
     pub kept: usize,
     pub grazing: usize,
     pub behind_camera: usize,
-    /// Curves left out because the curves they cross disagree with them, and their points.
+    /// Curves left out because the curves they cross disagree with them.
     pub inconsistent_curves: usize,
+    /// Points left out by the crossing check: of those curves, and the stretches of
+    /// other curves nearest a disagreement blamed on them.
     pub inconsistent_points: usize,
 }
 
@@ -70,12 +72,128 @@ impl TriangulateStats {
 }
 
 /// A crossing of two curves (ids into the caller's list of curves) at the undistorted
-/// normalised image point `u`.
+/// normalised image point `u`, which is near point `at[0]` of curve `a` and point
+/// `at[1]` of curve `b`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CurveCrossing {
     pub a: u32,
     pub b: u32,
     pub u: [f64; 2],
+    pub at: [u32; 2],
+}
+
+/// What [`check_crossings`] found: curves to leave out whole, and for the others the
+/// stretches to leave out.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CrossingCheck {
+    /// Per curve: left out whole.
+    pub rejected: Vec<bool>,
+    /// Per curve: its judged crossings, `(point index, speaks for the curve)`, in point
+    /// order. A disagreement speaks against the curve it is blamed on (the one of
+    /// the two that agrees less with the rest of its crossings) and for the other.
+    pub marks: Vec<Vec<(u32, bool)>>,
+}
+
+impl CrossingCheck {
+    /// Whether point `k` of curve `i` is kept: not if the curve is rejected, nor if the
+    /// nearest judged crossing along the curve (by point index; ties go to the
+    /// earlier) speaks against it. Points of curves with no judged crossing are kept.
+    pub fn keeps(&self, i: usize, k: u32) -> bool {
+        if self.rejected.get(i).copied().unwrap_or(false) {
+            return false;
+        }
+        let Some(marks) = self.marks.get(i).filter(|m| !m.is_empty()) else {
+            return true;
+        };
+        let after = marks.partition_point(|&(at, _)| at < k);
+        let before = after.checked_sub(1).map(|j| marks[j]);
+        let next = marks.get(after).copied();
+        match (before, next) {
+            (Some(b), Some(n)) => {
+                if k - b.0 <= n.0 - k {
+                    b.1
+                } else {
+                    n.1
+                }
+            }
+            (Some(m), None) | (None, Some(m)) => m.1,
+            (None, None) => true,
+        }
+    }
+
+    /// Whether any point of curve `i` is left out.
+    pub fn partial(&self, i: usize) -> bool {
+        !self.rejected.get(i).copied().unwrap_or(false)
+            && self
+                .marks
+                .get(i)
+                .is_some_and(|m| m.iter().any(|&(_, ok)| !ok))
+    }
+}
+
+/// [`inconsistent_curves`], then, among the curves kept, each remaining disagreement
+/// blamed on the curve whose crossings agree less often (both on a tie), so that a curve
+/// that runs off the surface part of the way (into the glow of its sheet) loses that
+/// stretch and keeps the rest.
+pub fn check_crossings(
+    planes: &[Option<Vector3<f64>>],
+    crossings: &[CurveCrossing],
+    needs_support: &[bool],
+    params: &TriangulateParams,
+) -> CrossingCheck {
+    let rejected = inconsistent_curves(planes, crossings, needs_support, params);
+    let n = planes.len();
+    let judged: Vec<(&CurveCrossing, bool)> = crossings
+        .iter()
+        .filter(|c| {
+            let (a, b) = (c.a as usize, c.b as usize);
+            a != b && a < n && b < n && !rejected[a] && !rejected[b]
+        })
+        .filter_map(|c| {
+            Some((
+                c,
+                agrees(planes[c.a as usize]?, planes[c.b as usize]?, c.u, params),
+            ))
+        })
+        .collect();
+    let (mut good, mut total) = (vec![0u32; n], vec![0u32; n]);
+    for &(c, ok) in &judged {
+        for i in [c.a as usize, c.b as usize] {
+            total[i] += 1;
+            good[i] += u32::from(ok);
+        }
+    }
+    // good_a / total_a < good_b / total_b, without division.
+    let less = |a: usize, b: usize| {
+        (good[a] as u64 * total[b] as u64) < (good[b] as u64 * total[a] as u64)
+    };
+    let mut marks: Vec<Vec<(u32, bool)>> = vec![Vec::new(); n];
+    for &(c, ok) in &judged {
+        let (a, b) = (c.a as usize, c.b as usize);
+        let (blame_a, blame_b) = if ok {
+            (false, false)
+        } else if less(a, b) {
+            (true, false)
+        } else if less(b, a) {
+            (false, true)
+        } else {
+            (true, true)
+        };
+        marks[a].push((c.at[0], !blame_a));
+        marks[b].push((c.at[1], !blame_b));
+    }
+    for m in &mut marks {
+        m.sort_unstable();
+    }
+    CrossingCheck { rejected, marks }
+}
+
+/// Whether two solved planes agree about the depth at the crossing `u` (a point behind
+/// the camera disagrees).
+fn agrees(va: Vector3<f64>, vb: Vector3<f64>, u: [f64; 2], params: &TriangulateParams) -> bool {
+    let u = Vector3::new(u[0], u[1], 1.0);
+    let (da, db) = (va.dot(&u), vb.dot(&u));
+    da > 0.0 && db > 0.0 && 2.0 * (da - db).abs() <= params.max_crossing_disagreement * (da + db)
 }
 
 /// Which curves to leave out: `planes[i]` is the solved plane of curve `i` (`None` when
@@ -111,11 +229,7 @@ pub fn inconsistent_curves(
         let (Some(va), Some(vb)) = (planes[a], planes[b]) else {
             continue;
         };
-        let u = Vector3::new(c.u[0], c.u[1], 1.0);
-        let (da, db) = (va.dot(&u), vb.dot(&u));
-        let agrees = da > 0.0
-            && db > 0.0
-            && 2.0 * (da - db).abs() <= params.max_crossing_disagreement * (da + db);
+        let agrees = agrees(va, vb, c.u, params);
         for (i, j) in [(a, b), (b, a)] {
             if agrees {
                 good[i] += 1;
@@ -416,6 +530,7 @@ mod tests {
             a,
             b,
             u: [x, -(d.z + d.x * x) / d.y],
+            at: [0, 0],
         }
     }
 
@@ -446,6 +561,7 @@ mod tests {
                 a,
                 b: 6,
                 u: [0.0, 0.0],
+                at: [0, 0],
             });
         }
         let params = TriangulateParams::default();
@@ -471,6 +587,44 @@ mod tests {
             .filter(|c| c.b != 5 || c.a == 0)
             .collect();
         assert!(!inconsistent_curves(&planes, &few, &[], &params).contains(&true));
+    }
+
+    #[test]
+    fn a_curve_that_runs_off_the_surface_loses_that_stretch() {
+        // Curves 0..5 on the surface cross each other; curve 5 agrees with 0, 1 and 2
+        // near its start (points 10, 20, 30) and runs into the water near its end,
+        // where it crosses 3 and 4 (points 80, 90).
+        let planes: Vec<Option<Vector3<f64>>> = (0..6)
+            .map(|i| {
+                let t = i as f64 * 0.3;
+                Some(Vector3::new(t.cos() * 0.4, t.sin() * 0.4, 1.0))
+            })
+            .collect();
+        let mut crossings = Vec::new();
+        for a in 0..5u32 {
+            for b in a + 1..5 {
+                crossings.push(agreeing(&planes, a, b, 0.05 * (a + b) as f64 - 0.2));
+            }
+        }
+        for (a, at) in [(0u32, 10u32), (1, 20), (2, 30), (3, 80), (4, 90)] {
+            let mut c = agreeing(&planes, a, 5, 0.1 * a as f64 - 0.2);
+            c.at = [50, at];
+            if a >= 3 {
+                c.u[0] += 0.6;
+            }
+            crossings.push(c);
+        }
+        let check = check_crossings(&planes, &crossings, &[], &TriangulateParams::default());
+        assert!(!check.rejected.contains(&true), "{check:?}");
+        assert!((0..5).all(|i| !check.partial(i)), "{check:?}");
+        assert!(check.partial(5));
+        for k in [0, 10, 50, 55] {
+            assert!(check.keeps(5, k), "point {k}");
+        }
+        for k in [56, 80, 85, 200] {
+            assert!(!check.keeps(5, k), "point {k}");
+        }
+        assert!(check.keeps(3, 50) && check.keeps(0, 0));
     }
 
     #[test]

@@ -324,6 +324,33 @@ impl PlaneCurves {
         }
     }
 
+    /// Index of the dense point of curve `ci` nearest `u` (searched between the two
+    /// vertices of the polyline segment nearest `u`).
+    pub(crate) fn nearest_point(&self, ci: usize, u: [f64; 2]) -> u32 {
+        let curve = &self.curves[ci];
+        let mut best: Option<(f64, usize)> = None;
+        for (k, seg) in curve.polyline.windows(2).enumerate() {
+            let d = crate::intersect::point_segment_distance(u, seg[0], seg[1]);
+            if best.is_none_or(|(b, _)| d < b) {
+                best = Some((d, k));
+            }
+        }
+        let Some((_, k)) = best else {
+            return 0;
+        };
+        let last = curve.points.len().saturating_sub(1);
+        let start = self.vertices[ci].get(k).copied().unwrap_or(0).min(last);
+        let end = self.vertices[ci]
+            .get(k + 1)
+            .copied()
+            .unwrap_or(last)
+            .clamp(start, last);
+        let d2 = |p: &[f64; 2]| (p[0] - u[0]).powi(2) + (p[1] - u[1]).powi(2);
+        (start..=end)
+            .min_by(|&i, &j| d2(&curve.points[i]).total_cmp(&d2(&curve.points[j])))
+            .unwrap_or(start) as u32
+    }
+
     /// Curve index and the range of its dense points around `u` (see [`Self::dense_near`]).
     fn run_near(&self, u: [f64; 2], radius: f64) -> Option<(usize, usize, usize)> {
         let mut best: Option<(f64, usize, usize)> = None;
@@ -500,13 +527,15 @@ pub fn reconstruct_curves(
     // their planes too); the solver sees crossings of planes, the consistency check of
     // the cloud crossings of curves. Curves of one plane do not constrain it.
     let mut curve_plane: Vec<u32> = Vec::with_capacity(curves_total);
+    let mut curve_local: Vec<u32> = Vec::with_capacity(curves_total);
     let mut crossings: Vec<Crossing> = Vec::new();
     let mut curve_ids: Vec<[u32; 2]> = Vec::new();
     let mut fresh = Vec::new();
     for (id, plane) in planes.iter().enumerate() {
-        for curve in &plane.curves {
+        for (local, curve) in plane.curves.iter().enumerate() {
             let cid = curve_plane.len() as u32;
             curve_plane.push(id as u32);
+            curve_local.push(local as u32);
             fresh.clear();
             index.insert_into(cid, &curve.polyline, &mut fresh);
             for c in &fresh {
@@ -596,15 +625,25 @@ pub fn reconstruct_curves(
         .iter()
         .map(|&p| solution.planes.get(p as usize).copied().flatten())
         .collect();
+    let at = |cid: u32, u: [f64; 2]| {
+        let (p, local) = (curve_plane[cid as usize], curve_local[cid as usize]);
+        planes[p as usize].nearest_point(local as usize, u)
+    };
     let curve_crossings: Vec<cloud::CurveCrossing> = crossings
-        .iter()
+        .par_iter()
         .zip(&curve_ids)
-        .map(|(c, &[a, b])| cloud::CurveCrossing { a, b, u: c.u })
+        .map(|(c, &[a, b])| cloud::CurveCrossing {
+            a,
+            b,
+            u: c.u,
+            at: [at(a, c.u), at(b, c.u)],
+        })
         .collect();
     // Faint curves must be confirmed by a crossing that agrees.
-    let inconsistent =
-        cloud::inconsistent_curves(&curve_planes, &curve_crossings, &faint, &config.triangulate);
+    let check =
+        cloud::check_crossings(&curve_planes, &curve_crossings, &faint, &config.triangulate);
     let mut cid = 0;
+    let (mut kept_points, mut kept_px) = (Vec::new(), Vec::new());
     for (id, plane) in planes.iter().enumerate() {
         let first = cid;
         cid += plane.curves.len();
@@ -612,11 +651,26 @@ pub fn reconstruct_curves(
             continue;
         };
         for (k, curve) in plane.curves.iter().enumerate() {
-            if inconsistent[first + k] {
+            let i = first + k;
+            if check.rejected[i] {
                 stats.inconsistent_curves += 1;
                 stats.inconsistent_points += curve.points.len();
                 continue;
             }
+            let (points, points_px) = if check.partial(i) {
+                kept_points.clear();
+                kept_px.clear();
+                for (j, (p, px)) in curve.points.iter().zip(&curve.points_px).enumerate() {
+                    if check.keeps(i, j as u32) {
+                        kept_points.push(*p);
+                        kept_px.push(*px);
+                    }
+                }
+                stats.inconsistent_points += curve.points.len() - kept_points.len();
+                (&kept_points[..], &kept_px[..])
+            } else {
+                (&curve.points[..], &curve.points_px[..])
+            };
             stats.add(&cloud::push_curve(
                 &mut cloud,
                 Some(&mut pixels),
@@ -624,8 +678,8 @@ pub fn reconstruct_curves(
                 CurvePoints {
                     frame: plane.frame,
                     laser: plane.laser,
-                    points: &curve.points,
-                    points_px: &curve.points_px,
+                    points,
+                    points_px,
                 },
                 colour_source,
                 &config.triangulate,
