@@ -479,12 +479,19 @@ impl Detector {
         }
     }
 
-    /// Whether a pixel zeroed for another colour lies within `mask_radius` of `(x, y)`:
-    /// the smoothed response there is distorted by the hole (e.g. at the cross centre).
-    fn near_mask(masked: &[u8], (w, h): (usize, usize), r: usize, x: usize, y: usize) -> bool {
-        let (xa, xb) = (x.saturating_sub(r), (x + r + 1).min(w));
-        let (ya, yb) = (y.saturating_sub(r), (y + r + 1).min(h));
-        (ya..yb).any(|yy| masked[yy * w + xa..yy * w + xb].iter().any(|&m| m != 0))
+    /// Whether a pixel zeroed for another colour lies within `r` of the pixels
+    /// `[x0, x1) × [y0, y1)`: the smoothed response there is distorted by the hole (e.g.
+    /// at the cross centre).
+    fn near_mask(masked: &[u8], (w, h): (usize, usize), r: usize, [x0, x1, y0, y1]: Rect) -> bool {
+        let (xa, xb) = (x0.saturating_sub(r), (x1 + r).min(w));
+        let (ya, yb) = (y0.saturating_sub(r), (y1 + r).min(h));
+        // OR-ing whole rows, rather than stopping at the first hit, vectorises.
+        (ya..yb).any(|yy| {
+            masked[yy * w + xa..yy * w + xb]
+                .iter()
+                .fold(0, |a, &m| a | m)
+                != 0
+        })
     }
 
     fn column_pass_and_hessian(&mut self, level: usize, t: usize, min_strength: f32) {
@@ -508,6 +515,9 @@ impl Detector {
         let (k0, k1, k2) = (&kernels.k0[r..], &kernels.k1[r..], &kernels.k2[r..]);
         // Rows past the top and bottom borders repeat the edge row.
         let span = |ys: usize| ys * w + x0..ys * w + x1;
+        // Whether the tile is within `mask_radius` of a masked pixel: found out at its
+        // first point, and only then are its points tested one by one.
+        let mut tile_near_mask = None;
         let (rs, rd1, rd2) = (&self.row_s, &self.row_d1, &self.row_d2);
         for y in y0..y1 {
             // The centre tap (k1 is zero there) and the first pair are written rather
@@ -579,53 +589,77 @@ impl Detector {
                     }
                 }
             }
-            for k in 0..n {
-                let (a, b, c) = (gxx[k], gxy[k], gyy[k]);
+            // The Hessian's eigen-analysis and the sub-pixel offset for the whole row,
+            // without branches so that it vectorises (most pixels of a wide stripe pass
+            // the strength test and fail the offset test: branching on each test
+            // mispredicts, and its square roots and divisions run one at a time). The
+            // sums are overwritten in place with (nx, ny, λ, ox, oy, keep).
+            for (((((pxx, pxy), pyy), px), py), p) in gxx[..n]
+                .iter_mut()
+                .zip(gxy[..n].iter_mut())
+                .zip(gyy[..n].iter_mut())
+                .zip(gx[..n].iter_mut())
+                .zip(gy[..n].iter_mut())
+                .zip(g[..n].iter_mut())
+            {
+                let (a, b, c) = (*pxx, *pxy, *pyy);
                 let half = 0.5 * (a + c);
-                // Bright line: the strongest curvature is across it and negative.
-                if half > 0.0 {
-                    continue;
-                }
                 let disc2 = 0.25 * (a - c) * (a - c) + b * b;
-                // −λ = disc − half ≥ min_strength, tested without the square root first.
+                // −λ = disc − half ≥ min_strength: disc² ≥ need² where need > 0.
                 let need = min_strength + half;
-                if need > 0.0 && disc2 < need * need {
-                    continue;
-                }
                 let disc = disc2.sqrt();
                 let lambda = half - disc;
                 let (ux, uy) = (b, lambda - a);
                 let (vx, vy) = (lambda - c, b);
-                let (mut nx, mut ny) = if ux * ux + uy * uy >= vx * vx + vy * vy {
+                let (nx, ny) = if ux * ux + uy * uy >= vx * vx + vy * vy {
                     (ux, uy)
                 } else {
                     (vx, vy)
                 };
                 let norm = (nx * nx + ny * ny).sqrt();
-                if norm <= f32::EPSILON * disc.max(f32::MIN_POSITIVE) {
-                    // Isotropic Hessian: a blob, not a line.
-                    continue;
-                }
-                nx /= norm;
-                ny /= norm;
+                let (nx, ny) = (nx / norm, ny / norm);
                 // Offset to the peak along the normal from the second-order Taylor
                 // expansion of ln g rather than of g: exact for a Gaussian profile of
                 // any width, where Steger's plain step −g'/g'' overshoots by about
                 // d³/(s² + σ²) (up to 0.05 px at d = 0.5 px, which also opens gaps
                 // where the line crosses between two pixel rows).
-                let d1 = nx * gx[k] + ny * gy[k];
-                let gk = g[k];
-                let tt = if gk > 0.0 {
-                    d1 * gk / (d1 * d1 - gk * lambda)
+                let d1 = nx * *px + ny * *py;
+                let gk = *p;
+                // t = d1·g / (d1² − g·λ) where g > 0, else −d1 / λ; one division for
+                // either.
+                let (num, den) = if gk > 0.0 {
+                    (d1 * gk, d1 * d1 - gk * lambda)
                 } else {
-                    -d1 / lambda
+                    (-d1, lambda)
                 };
+                let tt = num / den;
                 let (ox, oy) = (tt * nx, tt * ny);
-                if ox.abs() > 0.5 || oy.abs() > 0.5 {
-                    continue;
-                }
+                // Bright line: the strongest curvature is across it and negative;
+                // strong enough; not an isotropic Hessian (a blob, not a line); and
+                // the peak inside the pixel.
+                let drop = (half > 0.0)
+                    | ((need > 0.0) & (disc2 < need * need))
+                    | (norm <= f32::EPSILON * disc.max(f32::MIN_POSITIVE))
+                    | (ox.abs() > 0.5)
+                    | (oy.abs() > 0.5);
+                (*pxx, *pxy, *pyy, *px, *py) = (nx, ny, lambda, ox, oy);
+                *p = if drop { 0.0 } else { 1.0 };
+            }
+            let found = gxx[..n]
+                .iter()
+                .zip(&gxy[..n])
+                .zip(&gyy[..n])
+                .zip(&gx[..n])
+                .zip(&gy[..n])
+                .zip(&g[..n])
+                .enumerate()
+                .filter(|(_, (_, keep))| **keep != 0.0);
+            for (k, (((((&nx, &ny), &lambda), &ox), &oy), _)) in found {
                 let x = x0 + k;
-                if Self::near_mask(&self.masked, (w, h), mask_radius, x, y) {
+                if *tile_near_mask.get_or_insert_with(|| {
+                    Self::near_mask(&self.masked, (w, h), mask_radius, [x0, x1, y0, y1])
+                }) && Self::near_mask(&self.masked, (w, h), mask_radius, [x, x + 1, y, y + 1])
+                {
                     continue;
                 }
                 let pixel = y * w + x;
