@@ -14,6 +14,10 @@
 
 /// Offsets `-r..=r` of the sampled Gaussian and its first two derivatives, normalised so
 /// that they are exact on constants, ramps and parabolas.
+///
+/// `k0` and `k2` are exactly symmetric and `k1` exactly antisymmetric (zero at the
+/// centre), bit for bit: each tap is computed from `i²` or `i` times a function of `i²`,
+/// and negating is exact. The passes rely on it to fold the taps `±i` together.
 #[derive(Clone, Debug)]
 pub(crate) struct Kernels {
     pub radius: usize,
@@ -399,58 +403,100 @@ impl Detector {
         self.tile_level = tile_level;
     }
 
+    /// Smooths, and differentiates once and twice, the response rows of `rect` along x.
+    ///
+    /// The kernels are symmetric (`k0`, `k2`) or antisymmetric (`k1`) about their centre
+    /// ([`Kernels::new`]), so each pair of taps `±i` costs one sum and one difference of
+    /// the two samples and three multiply-adds, instead of six multiply-adds.
     fn row_pass(&mut self, level: usize, [x0, x1, y0, y1]: Rect) {
         let w = self.width;
         let kernels = &self.levels[level].kernels;
-        let r = kernels.radius as isize;
-        let fast = x0 as isize >= r && (x1 as isize + r) <= w as isize;
+        let r = kernels.radius;
+        // Taps at offsets 0..=r; those at −i mirror them.
+        let (k0, k1, k2) = (&kernels.k0[r..], &kernels.k1[r..], &kernels.k2[r..]);
+        let fast = x0 >= r && x1 + r <= w;
         for y in y0..y1 {
             let row = &self.response[y * w..(y + 1) * w];
             let o0 = &mut self.row_s[y * w + x0..y * w + x1];
             let o1 = &mut self.row_d1[y * w + x0..y * w + x1];
             let o2 = &mut self.row_d2[y * w + x0..y * w + x1];
-            o0.fill(0.0);
-            o1.fill(0.0);
-            o2.fill(0.0);
-            for (j, i) in (-r..=r).enumerate() {
-                let (a, b, c) = (kernels.k0[j], kernels.k1[j], kernels.k2[j]);
-                if fast {
-                    let s = (x0 as isize + i) as usize;
-                    let src = &row[s..s + (x1 - x0)];
-                    for (((v, p0), p1), p2) in src
-                        .iter()
-                        .zip(o0.iter_mut())
+            if fast {
+                // The centre tap (k1 is zero there) and the first pair, written rather
+                // than added, so that the outputs need no zeroing.
+                let (a, b, c) = (k0[1], k1[1], k2[1]);
+                let (c0, c2) = (k0[0], k2[0]);
+                let mid = &row[x0..x1];
+                let hi = &row[x0 + 1..x1 + 1];
+                let lo = &row[x0 - 1..x1 - 1];
+                for (((((p0, p1), p2), m), u), v) in o0
+                    .iter_mut()
+                    .zip(o1.iter_mut())
+                    .zip(o2.iter_mut())
+                    .zip(mid)
+                    .zip(hi)
+                    .zip(lo)
+                {
+                    let (sum, diff) = (u + v, u - v);
+                    *p0 = m * c0 + sum * a;
+                    *p1 = diff * b;
+                    *p2 = m * c2 + sum * c;
+                }
+                for i in 2..=r {
+                    let (a, b, c) = (k0[i], k1[i], k2[i]);
+                    let hi = &row[x0 + i..x1 + i];
+                    let lo = &row[x0 - i..x1 - i];
+                    for ((((p0, p1), p2), u), v) in o0
+                        .iter_mut()
                         .zip(o1.iter_mut())
                         .zip(o2.iter_mut())
+                        .zip(hi)
+                        .zip(lo)
                     {
-                        *p0 += v * a;
-                        *p1 += v * b;
-                        *p2 += v * c;
+                        let (sum, diff) = (u + v, u - v);
+                        *p0 += sum * a;
+                        *p1 += diff * b;
+                        *p2 += sum * c;
                     }
-                } else {
-                    for (k, x) in (x0..x1).enumerate() {
-                        let xs = (x as isize + i).clamp(0, w as isize - 1) as usize;
-                        let v = row[xs];
-                        o0[k] += v * a;
-                        o1[k] += v * b;
-                        o2[k] += v * c;
+                }
+            } else {
+                // Near the left and right borders, samples past them repeat the edge.
+                let at = |x: isize| row[x.clamp(0, w as isize - 1) as usize];
+                for (k, x) in (x0..x1).enumerate() {
+                    let m = row[x];
+                    let (mut s0, mut s1, mut s2) = (m * k0[0], 0.0, m * k2[0]);
+                    for i in 1..=r {
+                        let (u, v) = (at((x + i) as isize), at(x as isize - i as isize));
+                        let (sum, diff) = (u + v, u - v);
+                        s0 += sum * k0[i];
+                        s1 += diff * k1[i];
+                        s2 += sum * k2[i];
                     }
+                    o0[k] = s0;
+                    o1[k] = s1;
+                    o2[k] = s2;
                 }
             }
         }
     }
 
-    /// Whether a pixel zeroed for another colour lies within `mask_radius` of `(x, y)`:
-    /// the smoothed response there is distorted by the hole (e.g. at the cross centre).
-    fn near_mask(masked: &[u8], (w, h): (usize, usize), r: usize, x: usize, y: usize) -> bool {
-        let (xa, xb) = (x.saturating_sub(r), (x + r + 1).min(w));
-        let (ya, yb) = (y.saturating_sub(r), (y + r + 1).min(h));
-        (ya..yb).any(|yy| masked[yy * w + xa..yy * w + xb].iter().any(|&m| m != 0))
+    /// Whether a pixel zeroed for another colour lies within `r` of the pixels
+    /// `[x0, x1) × [y0, y1)`: the smoothed response there is distorted by the hole (e.g.
+    /// at the cross centre).
+    fn near_mask(masked: &[u8], (w, h): (usize, usize), r: usize, [x0, x1, y0, y1]: Rect) -> bool {
+        let (xa, xb) = (x0.saturating_sub(r), (x1 + r).min(w));
+        let (ya, yb) = (y0.saturating_sub(r), (y1 + r).min(h));
+        // OR-ing whole rows, rather than stopping at the first hit, vectorises.
+        (ya..yb).any(|yy| {
+            masked[yy * w + xa..yy * w + xb]
+                .iter()
+                .fold(0, |a, &m| a | m)
+                != 0
+        })
     }
 
     fn column_pass_and_hessian(&mut self, level: usize, t: usize, min_strength: f32) {
         let (x0, x1, y0, y1) = self.tile_bounds(t);
-        let (w, h) = (self.width, self.height as isize);
+        let (w, h) = (self.width, self.height);
         let n = x1 - x0;
         let Level {
             kernels,
@@ -459,90 +505,161 @@ impl Detector {
             ..
         } = &self.levels[level];
         let (mask_radius, per_grey) = (*mask_radius, *per_grey);
-        let r = kernels.radius as isize;
         let (gx, rest) = self.acc.split_at_mut(self.tile);
         let (gy, rest) = rest.split_at_mut(self.tile);
         let (gxx, rest) = rest.split_at_mut(self.tile);
         let (gxy, rest) = rest.split_at_mut(self.tile);
         let (gyy, g) = rest.split_at_mut(self.tile);
+        // Taps at offsets 0..=r; those at −i mirror them (see `row_pass`).
+        let r = kernels.radius;
+        let (k0, k1, k2) = (&kernels.k0[r..], &kernels.k1[r..], &kernels.k2[r..]);
+        // Rows past the top and bottom borders repeat the edge row.
+        let span = |ys: usize| ys * w + x0..ys * w + x1;
+        // Whether the tile is within `mask_radius` of a masked pixel: found out at its
+        // first point, and only then are its points tested one by one.
+        let mut tile_near_mask = None;
+        let (rs, rd1, rd2) = (&self.row_s, &self.row_d1, &self.row_d2);
         for y in y0..y1 {
-            for a in [&mut *g, &mut *gx, &mut *gy, &mut *gxx, &mut *gxy, &mut *gyy] {
-                a[..n].fill(0.0);
-            }
-            for (j, i) in (-r..=r).enumerate() {
-                let ys = (y as isize + i).clamp(0, h - 1) as usize;
-                let span = ys * w + x0..ys * w + x1;
-                let (k0, k1, k2) = (kernels.k0[j], kernels.k1[j], kernels.k2[j]);
-                let s = &self.row_s[span.clone()];
-                let d1 = &self.row_d1[span.clone()];
-                let d2 = &self.row_d2[span];
+            // The centre tap (k1 is zero there) and the first pair are written rather
+            // than added, so that the sums need no zeroing; each later pair ±i adds the
+            // sum and difference of its two rows, weighted once.
+            for i in 1..=r {
+                let (hi, lo) = (span((y + i).min(h - 1)), span(y.saturating_sub(i)));
+                let (a, b, c) = (k0[i], k1[i], k2[i]);
                 // Three zipped loops rather than one indexed one: no bounds checks, so
                 // they vectorise.
-                for (((a0, a1), a2), v) in g[..n]
-                    .iter_mut()
-                    .zip(gy[..n].iter_mut())
-                    .zip(gyy[..n].iter_mut())
-                    .zip(s)
-                {
-                    *a0 += v * k0;
-                    *a1 += v * k1;
-                    *a2 += v * k2;
-                }
-                for ((a0, a1), v) in gx[..n].iter_mut().zip(gxy[..n].iter_mut()).zip(d1) {
-                    *a0 += v * k0;
-                    *a1 += v * k1;
-                }
-                for (a0, v) in gxx[..n].iter_mut().zip(d2) {
-                    *a0 += v * k0;
+                if i == 1 {
+                    let mid = span(y);
+                    let (c0, c2) = (k0[0], k2[0]);
+                    for (((((a0, a1), a2), m), u), v) in g[..n]
+                        .iter_mut()
+                        .zip(gy[..n].iter_mut())
+                        .zip(gyy[..n].iter_mut())
+                        .zip(&rs[mid.clone()])
+                        .zip(&rs[hi.clone()])
+                        .zip(&rs[lo.clone()])
+                    {
+                        let (sum, diff) = (u + v, u - v);
+                        *a0 = m * c0 + sum * a;
+                        *a1 = diff * b;
+                        *a2 = m * c2 + sum * c;
+                    }
+                    for ((((a0, a1), m), u), v) in gx[..n]
+                        .iter_mut()
+                        .zip(gxy[..n].iter_mut())
+                        .zip(&rd1[mid.clone()])
+                        .zip(&rd1[hi.clone()])
+                        .zip(&rd1[lo.clone()])
+                    {
+                        *a0 = m * c0 + (u + v) * a;
+                        *a1 = (u - v) * b;
+                    }
+                    for (((a0, m), u), v) in gxx[..n]
+                        .iter_mut()
+                        .zip(&rd2[mid])
+                        .zip(&rd2[hi])
+                        .zip(&rd2[lo])
+                    {
+                        *a0 = m * c0 + (u + v) * a;
+                    }
+                } else {
+                    for ((((a0, a1), a2), u), v) in g[..n]
+                        .iter_mut()
+                        .zip(gy[..n].iter_mut())
+                        .zip(gyy[..n].iter_mut())
+                        .zip(&rs[hi.clone()])
+                        .zip(&rs[lo.clone()])
+                    {
+                        let (sum, diff) = (u + v, u - v);
+                        *a0 += sum * a;
+                        *a1 += diff * b;
+                        *a2 += sum * c;
+                    }
+                    for (((a0, a1), u), v) in gx[..n]
+                        .iter_mut()
+                        .zip(gxy[..n].iter_mut())
+                        .zip(&rd1[hi.clone()])
+                        .zip(&rd1[lo.clone()])
+                    {
+                        *a0 += (u + v) * a;
+                        *a1 += (u - v) * b;
+                    }
+                    for ((a0, u), v) in gxx[..n].iter_mut().zip(&rd2[hi]).zip(&rd2[lo]) {
+                        *a0 += (u + v) * a;
+                    }
                 }
             }
-            for k in 0..n {
-                let (a, b, c) = (gxx[k], gxy[k], gyy[k]);
+            // The Hessian's eigen-analysis and the sub-pixel offset for the whole row,
+            // without branches so that it vectorises (most pixels of a wide stripe pass
+            // the strength test and fail the offset test: branching on each test
+            // mispredicts, and its square roots and divisions run one at a time). The
+            // sums are overwritten in place with (nx, ny, λ, ox, oy, keep).
+            for (((((pxx, pxy), pyy), px), py), p) in gxx[..n]
+                .iter_mut()
+                .zip(gxy[..n].iter_mut())
+                .zip(gyy[..n].iter_mut())
+                .zip(gx[..n].iter_mut())
+                .zip(gy[..n].iter_mut())
+                .zip(g[..n].iter_mut())
+            {
+                let (a, b, c) = (*pxx, *pxy, *pyy);
                 let half = 0.5 * (a + c);
-                // Bright line: the strongest curvature is across it and negative.
-                if half > 0.0 {
-                    continue;
-                }
                 let disc2 = 0.25 * (a - c) * (a - c) + b * b;
-                // −λ = disc − half ≥ min_strength, tested without the square root first.
+                // −λ = disc − half ≥ min_strength: disc² ≥ need² where need > 0.
                 let need = min_strength + half;
-                if need > 0.0 && disc2 < need * need {
-                    continue;
-                }
                 let disc = disc2.sqrt();
                 let lambda = half - disc;
                 let (ux, uy) = (b, lambda - a);
                 let (vx, vy) = (lambda - c, b);
-                let (mut nx, mut ny) = if ux * ux + uy * uy >= vx * vx + vy * vy {
+                let (nx, ny) = if ux * ux + uy * uy >= vx * vx + vy * vy {
                     (ux, uy)
                 } else {
                     (vx, vy)
                 };
                 let norm = (nx * nx + ny * ny).sqrt();
-                if norm <= f32::EPSILON * disc.max(f32::MIN_POSITIVE) {
-                    // Isotropic Hessian: a blob, not a line.
-                    continue;
-                }
-                nx /= norm;
-                ny /= norm;
+                let (nx, ny) = (nx / norm, ny / norm);
                 // Offset to the peak along the normal from the second-order Taylor
                 // expansion of ln g rather than of g: exact for a Gaussian profile of
                 // any width, where Steger's plain step −g'/g'' overshoots by about
                 // d³/(s² + σ²) (up to 0.05 px at d = 0.5 px, which also opens gaps
                 // where the line crosses between two pixel rows).
-                let d1 = nx * gx[k] + ny * gy[k];
-                let gk = g[k];
-                let tt = if gk > 0.0 {
-                    d1 * gk / (d1 * d1 - gk * lambda)
+                let d1 = nx * *px + ny * *py;
+                let gk = *p;
+                // t = d1·g / (d1² − g·λ) where g > 0, else −d1 / λ; one division for
+                // either.
+                let (num, den) = if gk > 0.0 {
+                    (d1 * gk, d1 * d1 - gk * lambda)
                 } else {
-                    -d1 / lambda
+                    (-d1, lambda)
                 };
+                let tt = num / den;
                 let (ox, oy) = (tt * nx, tt * ny);
-                if ox.abs() > 0.5 || oy.abs() > 0.5 {
-                    continue;
-                }
+                // Bright line: the strongest curvature is across it and negative;
+                // strong enough; not an isotropic Hessian (a blob, not a line); and
+                // the peak inside the pixel.
+                let drop = (half > 0.0)
+                    | ((need > 0.0) & (disc2 < need * need))
+                    | (norm <= f32::EPSILON * disc.max(f32::MIN_POSITIVE))
+                    | (ox.abs() > 0.5)
+                    | (oy.abs() > 0.5);
+                (*pxx, *pxy, *pyy, *px, *py) = (nx, ny, lambda, ox, oy);
+                *p = if drop { 0.0 } else { 1.0 };
+            }
+            let found = gxx[..n]
+                .iter()
+                .zip(&gxy[..n])
+                .zip(&gyy[..n])
+                .zip(&gx[..n])
+                .zip(&gy[..n])
+                .zip(&g[..n])
+                .enumerate()
+                .filter(|(_, (_, keep))| **keep != 0.0);
+            for (k, (((((&nx, &ny), &lambda), &ox), &oy), _)) in found {
                 let x = x0 + k;
-                if Self::near_mask(&self.masked, (w, self.height), mask_radius, x, y) {
+                if *tile_near_mask.get_or_insert_with(|| {
+                    Self::near_mask(&self.masked, (w, h), mask_radius, [x0, x1, y0, y1])
+                }) && Self::near_mask(&self.masked, (w, h), mask_radius, [x, x + 1, y, y + 1])
+                {
                     continue;
                 }
                 let pixel = y * w + x;
@@ -563,6 +680,24 @@ impl Detector {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The passes fold the taps `±i` together, which is exact only if the kernels are.
+    #[test]
+    fn kernels_are_exactly_symmetric() {
+        for sigma in [1.0, 1.3, 1.7, 2.2, 3.2, 4.5, 7.9] {
+            let k = Kernels::new(sigma);
+            let r = k.radius;
+            assert_eq!(k.k0.len(), 2 * r + 1);
+            assert_eq!(k.k1.len(), 2 * r + 1);
+            assert_eq!(k.k2.len(), 2 * r + 1);
+            assert_eq!(k.k1[r], 0.0, "sigma {sigma}");
+            for i in 1..=r {
+                assert_eq!(k.k0[r + i], k.k0[r - i], "sigma {sigma}, k0 at ±{i}");
+                assert_eq!(k.k1[r + i], -k.k1[r - i], "sigma {sigma}, k1 at ±{i}");
+                assert_eq!(k.k2[r + i], k.k2[r - i], "sigma {sigma}, k2 at ±{i}");
+            }
+        }
+    }
 
     #[test]
     fn kernels_are_exact_on_polynomials() {
