@@ -105,9 +105,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         100.0 * report.outlier_relative
     );
     println!(
-        "coverage: {:.1} % of the lit image area has a point within {} px",
+        "coverage: {:.1} % of the lit image area has a point within {} px{}",
         100.0 * report.coverage.fraction,
-        report.coverage.radius_px
+        report.coverage.radius_px,
+        report
+            .coverage_visible
+            .as_ref()
+            .map(|v| format!(
+                " ({:.1} % of its part where the stripe was visible)",
+                100.0 * v.fraction
+            ))
+            .unwrap_or_default()
     );
     println!(
         "cloud: {} ({} points; open it in CloudCompare, MeshLab or Open3D)",
