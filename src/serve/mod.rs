@@ -172,6 +172,9 @@ pub struct Shared {
     pub frames_with_laser: AtomicU64,
     pub ring_depth: AtomicU64,
     pub device_state: AtomicU8,
+    /// Times the device was lost: a loss shorter than the status interval still gets
+    /// its status line.
+    pub device_losses: AtomicU64,
     pub recording_bytes: AtomicU64,
     pub recording_file: Mutex<String>,
     pub solver: Mutex<SolverCounts>,
@@ -180,6 +183,20 @@ pub struct Shared {
     pub last_error: Mutex<Option<String>>,
     pub solver_frame_micros: Mutex<Vec<u64>>,
     pub live_solver: Mutex<SolverCounts>,
+}
+
+/// The status lines to publish for `current`: when the device was lost since the last
+/// line (`lost_since`) but is not lost now, a line saying it was lost comes first, so
+/// that a loss shorter than the status interval is still seen by every reader.
+fn status_lines(current: &Status, lost_since: bool) -> Vec<Status> {
+    let mut lines = Vec::with_capacity(2);
+    if lost_since && current.device != DeviceState::Lost {
+        let mut was = current.clone();
+        was.device = DeviceState::Lost;
+        lines.push(was);
+    }
+    lines.push(current.clone());
+    lines
 }
 
 /// How a serve run ended.
@@ -730,14 +747,19 @@ pub fn run(
                     let mut last_beats = (u64::MAX, u64::MAX);
                     let mut ready = false;
                     let mut last_ping = Instant::now();
+                    let mut seen_losses = 0;
                     while !status_stop.load(Ordering::Relaxed) {
+                        let losses = shared.device_losses.load(Ordering::Relaxed);
                         let st = Status::gather(&shared, &hub, &scan_id, started);
                         if !ready && st.device == DeviceState::Streaming {
                             notifier.notify("READY=1");
                             ready = true;
                         }
-                        notifier.notify(&format!("STATUS={}", st.summary()));
-                        feed.publish(st.to_line());
+                        for line in status_lines(&st, losses != seen_losses) {
+                            notifier.notify(&format!("STATUS={}", line.summary()));
+                            feed.publish(line.to_line());
+                        }
+                        seen_losses = losses;
                         // The watchdog hears from the pipeline's progress: both the
                         // capture loop and the solver loop must have turned since the
                         // last ping (they turn at least every 100 ms while alive).
@@ -757,8 +779,13 @@ pub fn run(
                             }
                         }
                         last_beats = beats;
+                        // A change of the device's state is published at once.
                         let t = Instant::now();
-                        while t.elapsed() < interval && !status_stop.load(Ordering::Relaxed) {
+                        while t.elapsed() < interval
+                            && !status_stop.load(Ordering::Relaxed)
+                            && shared.device_losses.load(Ordering::Relaxed) == seen_losses
+                            && shared.device_state.load(Ordering::Relaxed) == st.device as u8
+                        {
                             std::thread::sleep(Duration::from_millis(20));
                         }
                     }
@@ -900,10 +927,11 @@ fn capture_loop(
             Ok(Next::Idle) => continue,
             Ok(Next::Lost(why)) => {
                 tracing::warn!("camera lost: {why}; retrying");
+                *lock(&shared.last_error) = Some(format!("device lost: {why}"));
                 shared
                     .device_state
                     .store(DeviceState::Lost as u8, Ordering::Relaxed);
-                *lock(&shared.last_error) = Some(format!("device lost: {why}"));
+                shared.device_losses.fetch_add(1, Ordering::Relaxed);
                 last_sequence = None;
                 continue;
             }
@@ -1269,6 +1297,29 @@ fn anyhow_like(e: &dyn std::error::Error) -> String {
 mod tests {
     use super::*;
     use crate::capture::dump::DumpReader;
+
+    #[test]
+    fn a_loss_shorter_than_the_status_interval_still_gets_its_line() {
+        let shared = Shared::default();
+        let hub = net::Hub::new("{}", 1 << 20, Instant::now());
+        shared
+            .device_state
+            .store(DeviceState::Streaming as u8, Ordering::Relaxed);
+        let st = Status::gather(&shared, &hub, "scan", Instant::now());
+        let devices = |lines: Vec<Status>| lines.iter().map(|l| l.device).collect::<Vec<_>>();
+        assert_eq!(devices(status_lines(&st, false)), [DeviceState::Streaming]);
+        // Lost and back between two lines: both are told, in order.
+        assert_eq!(
+            devices(status_lines(&st, true)),
+            [DeviceState::Lost, DeviceState::Streaming]
+        );
+        // Still lost: one line says so.
+        shared
+            .device_state
+            .store(DeviceState::Lost as u8, Ordering::Relaxed);
+        let st = Status::gather(&shared, &hub, "scan", Instant::now());
+        assert_eq!(devices(status_lines(&st, true)), [DeviceState::Lost]);
+    }
 
     #[test]
     fn recordings_rotate_by_size_and_keep_every_frame() {
