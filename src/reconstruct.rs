@@ -227,6 +227,9 @@ pub struct StageTimes {
 }
 
 /// What a reconstruction found; serialised as the `--report` JSON (with `version`).
+/// Within a version keys are only ever added (`crossings_in_solve`, the
+/// `triangulation.inconsistent_*` counts came later in version 1); readers should
+/// ignore keys they do not know.
 #[derive(Clone, Debug, Serialize)]
 pub struct ReconstructReport {
     pub version: u32,

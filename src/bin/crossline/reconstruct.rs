@@ -190,8 +190,8 @@ pub fn write_outputs(
 pub fn print_summary(rec: &Reconstruction) {
     let r = &rec.report;
     println!(
-        "frames {} (with laser {}), curves {}, planes {}, crossings {}",
-        r.frames, r.frames_with_laser, r.curves, r.planes, r.crossings
+        "frames {} (with laser {}), curves {}, planes {}, crossings {} ({} between strong curves)",
+        r.frames, r.frames_with_laser, r.curves, r.planes, r.crossings, r.crossings_in_solve
     );
     println!(
         "planes: {} in the global solve, {} solved; rejected {} crossings, {} planes",
@@ -215,6 +215,11 @@ pub fn print_summary(rec: &Reconstruction) {
     println!(
         "points {}, scale factor {:.6}{scale_note}",
         r.points, r.scale_factor
+    );
+    let t = &r.triangulation;
+    println!(
+        "left out: {} curves and {} points that their crossings disagree with, {} grazing, {} behind the camera",
+        t.inconsistent_curves, t.inconsistent_points, t.grazing, t.behind_camera
     );
     let s = &r.seconds;
     println!(
