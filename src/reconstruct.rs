@@ -560,19 +560,49 @@ pub fn reconstruct_curves(
             }
         });
     }
-    // The self-calibration sees only the crossings of strong curves: faint ones (no
-    // point reaching `solve.min_curve_strength`) could be glow or reflections just as
-    // well; they are triangulated on the planes the strong ones give.
+    let at = |cid: u32, u: [f64; 2]| {
+        let (p, local) = (curve_plane[cid as usize], curve_local[cid as usize]);
+        planes[p as usize].nearest_point(local as usize, u)
+    };
+    let curve_crossings: Vec<cloud::CurveCrossing> = crossings
+        .par_iter()
+        .zip(&curve_ids)
+        .map(|(c, &[a, b])| cloud::CurveCrossing {
+            a,
+            b,
+            u: c.u,
+            at: [at(a, c.u), at(b, c.u)],
+        })
+        .collect();
+    // The self-calibration sees only the crossings of strong curves (faint ones, with
+    // no point reaching `solve.min_curve_strength`, could be glow or reflections just
+    // as well) where both are at least `solve.min_crossing_strength` strong (not on a
+    // faint stretch that hangs on a strong one); the rest is triangulated on the planes
+    // these give.
     let min_strength = config.solve.min_curve_strength;
     let faint: Vec<bool> = planes
         .iter()
         .flat_map(|p| &p.curves)
         .map(|c| is_faint(c, min_strength))
         .collect();
+    let local_strength = |cid: u32, at: u32| {
+        let (p, local) = (curve_plane[cid as usize], curve_local[cid as usize]);
+        planes[p as usize].curves[local as usize]
+            .strength
+            .get(at as usize)
+            .copied()
+            .unwrap_or(f32::INFINITY)
+    };
+    let min_local = config.solve.min_crossing_strength;
     let strong: Vec<Crossing> = crossings
         .iter()
-        .zip(&curve_ids)
-        .filter(|(_, ids)| !faint[ids[0] as usize] && !faint[ids[1] as usize])
+        .zip(&curve_crossings)
+        .filter(|(_, cc)| {
+            !faint[cc.a as usize]
+                && !faint[cc.b as usize]
+                && local_strength(cc.a, cc.at[0]) >= min_local
+                && local_strength(cc.b, cc.at[1]) >= min_local
+        })
         .map(|(c, _)| *c)
         .collect();
     times.intersect_s = t.elapsed().as_secs_f64();
@@ -627,20 +657,6 @@ pub fn reconstruct_curves(
     let curve_planes: Vec<Option<Vector3<f64>>> = curve_plane
         .iter()
         .map(|&p| solution.planes.get(p as usize).copied().flatten())
-        .collect();
-    let at = |cid: u32, u: [f64; 2]| {
-        let (p, local) = (curve_plane[cid as usize], curve_local[cid as usize]);
-        planes[p as usize].nearest_point(local as usize, u)
-    };
-    let curve_crossings: Vec<cloud::CurveCrossing> = crossings
-        .par_iter()
-        .zip(&curve_ids)
-        .map(|(c, &[a, b])| cloud::CurveCrossing {
-            a,
-            b,
-            u: c.u,
-            at: [at(a, c.u), at(b, c.u)],
-        })
         .collect();
     // Faint curves must be confirmed by a crossing that agrees.
     let check =
@@ -808,19 +824,32 @@ mod tests {
             stray.polyline.truncate(third);
             per_frame[frame].push(stray);
         }
+        // Frame 20's first curve fades along its second half: those crossings do not
+        // shape the planes, though its strong half does.
+        let fading = &mut per_frame[20][0].strength;
+        let n = fading.len();
+        fading[n / 2..].fill(0.25 * strong);
 
-        let rec = reconstruct_curves(
-            per_frame,
-            &camera,
-            &Config::default(),
-            PlaneSource::SelfCalibrated,
-            &ScaleMode::Factor { factor: 1.0 },
-            None,
-        )
-        .expect("solves");
+        let run = |per_frame: Vec<Vec<Curve>>, config: &Config| {
+            reconstruct_curves(
+                per_frame,
+                &camera,
+                config,
+                PlaneSource::SelfCalibrated,
+                &ScaleMode::Factor { factor: 1.0 },
+                None,
+            )
+            .expect("solves")
+        };
+        let mut ungated = Config::default();
+        ungated.solve.min_crossing_strength = 0.0;
+        let without_local_gate = run(per_frame.clone(), &ungated).report;
+        let rec = run(per_frame, &Config::default());
         let r = &rec.report;
         assert_eq!(r.triangulation.inconsistent_curves, 2, "{r:?}");
-        assert!(r.crossings_in_solve < r.crossings);
+        assert!(r.crossings_in_solve < without_local_gate.crossings_in_solve);
+        assert!(without_local_gate.crossings_in_solve < r.crossings);
+        assert_eq!(without_local_gate.crossings, r.crossings);
         // Every point lies on the surface (up to the one global scale).
         let scale: Vec<f64> = rec
             .cloud

@@ -126,6 +126,10 @@ pub struct SolveParams {
     /// to cover dim surfaces, where faint false ridges (the sheet's glow under water)
     /// would otherwise pull the planes.
     pub min_curve_strength: f32,
+    /// And a crossing of two strong curves shapes the planes only where both are at
+    /// least this strong (grey levels): not on a faint stretch that hangs on a strong
+    /// curve (into its sheet's glow, say).
+    pub min_crossing_strength: f32,
 }
 
 impl Default for SolveParams {
@@ -144,6 +148,7 @@ impl Default for SolveParams {
             max_outlier_fraction: 0.5,
             motion_prior_max_gap: 3,
             min_curve_strength: 40.0,
+            min_crossing_strength: 15.0,
         }
     }
 }
