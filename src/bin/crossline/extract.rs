@@ -42,15 +42,20 @@ pub struct Args {
     line_width_px: Option<f64>,
 }
 
+/// The lasers of a `--lasers NAME` option (a preset of [`LaserColour::preset`]).
+pub fn lasers_arg(name: &str) -> anyhow::Result<Vec<LaserColour>> {
+    LaserColour::preset(name).with_context(|| {
+        format!("--lasers {name:?}: expected red-green, blue-green, red, green or blue")
+    })
+}
+
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut params = match &args.config {
         Some(path) => load_params(path)?,
         None => ExtractParams::default(),
     };
     if let Some(name) = &args.lasers {
-        params.lasers = LaserColour::preset(name).with_context(|| {
-            format!("--lasers {name:?}: expected red-green, blue-green, red, green or blue")
-        })?;
+        params.lasers = lasers_arg(name)?;
     }
     if let Some(w) = args.line_width_px {
         params.line_width_px = Some(w);
@@ -239,6 +244,18 @@ mod tests {
             .get_pixel(p[0].round() as u32, p[1].round() as u32)
             .0;
         assert_eq!(px, LaserColour::red().display_rgb);
+    }
+
+    #[test]
+    fn lasers_option_names_a_preset_or_says_what_it_expects() {
+        let lasers = lasers_arg("blue-green").expect("a preset");
+        assert_eq!(lasers.len(), 2);
+        assert_eq!(lasers[0].name, "blue");
+        let err = format!("{:#}", lasers_arg("purple").expect_err("no such preset"));
+        assert!(
+            err.contains("\"purple\"") && err.contains("blue-green"),
+            "{err}"
+        );
     }
 
     #[test]

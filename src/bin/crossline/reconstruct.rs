@@ -39,6 +39,10 @@ pub struct Args {
     /// Settings file (see config/crossline.toml for every key and its default).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
+    /// Laser colours, overriding the config's [[extract.lasers]]: red-green (the
+    /// default), blue-green, or one laser: red, green or blue.
+    #[arg(long, value_name = "PAIR")]
+    lasers: Option<String>,
     /// A laser-off frame of the same view; without it the background is the temporal
     /// median of frames sampled over the sequence.
     #[arg(long, value_name = "FILE")]
@@ -73,6 +77,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     };
     if args.estimate_focal {
         config.solve.estimate_focal = true;
+    }
+    if let Some(name) = &args.lasers {
+        config.extract.lasers = crate::extract::lasers_arg(name)?;
     }
     let scale = scale_mode(args.scale, args.known_distance.as_deref())?;
     let (frames, stopped) = reconstruct::FrameSource::open(&args.input)?;

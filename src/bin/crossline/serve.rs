@@ -36,6 +36,10 @@ pub struct Args {
     /// lists every key and its default).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
+    /// Laser colours, overriding the config's [[extract.lasers]]: red-green (the
+    /// default), blue-green, or one laser: red, green or blue.
+    #[arg(long, value_name = "PAIR")]
+    lasers: Option<String>,
     /// Camera calibration at the capture size (OpenCV FileStorage YAML, ROS
     /// camera_info YAML or TOML). Default: [serve] camera.
     #[arg(long, value_name = "FILE")]
@@ -96,6 +100,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         Some(path) => crossline::config::load(path)?,
         None => Config::default(),
     };
+    if let Some(name) = &args.lasers {
+        config.extract.lasers = crate::extract::lasers_arg(name)?;
+    }
     let sc = &mut config.serve;
     if let Some(w) = args.workers {
         sc.workers = w;
