@@ -330,63 +330,66 @@ impl PlaneCurves {
     /// Index of the dense point of curve `ci` nearest `u` (searched between the two
     /// vertices of the polyline segment nearest `u`).
     pub(crate) fn nearest_point(&self, ci: usize, u: [f64; 2]) -> u32 {
-        let curve = &self.curves[ci];
-        let mut best: Option<(f64, usize)> = None;
-        for (k, seg) in curve.polyline.windows(2).enumerate() {
-            let d = crate::intersect::point_segment_distance(u, seg[0], seg[1]);
-            if best.is_none_or(|(b, _)| d < b) {
-                best = Some((d, k));
-            }
-        }
-        let Some((_, k)) = best else {
+        let Some((_, k)) = self.nearest_segment(ci, u) else {
             return 0;
         };
-        let last = curve.points.len().saturating_sub(1);
-        let start = self.vertices[ci].get(k).copied().unwrap_or(0).min(last);
-        let end = self.vertices[ci]
-            .get(k + 1)
-            .copied()
-            .unwrap_or(last)
-            .clamp(start, last);
+        let (start, end) = self.segment_span(ci, k);
+        let points = &self.curves[ci].points;
         let d2 = |p: &[f64; 2]| (p[0] - u[0]).powi(2) + (p[1] - u[1]).powi(2);
         (start..=end)
-            .min_by(|&i, &j| d2(&curve.points[i]).total_cmp(&d2(&curve.points[j])))
+            .min_by(|&i, &j| d2(&points[i]).total_cmp(&d2(&points[j])))
             .unwrap_or(start) as u32
     }
 
     /// Curve index and the range of its dense points around `u` (see [`Self::dense_near`]).
     fn run_near(&self, u: [f64; 2], radius: f64) -> Option<(usize, usize, usize)> {
-        let mut best: Option<(f64, usize, usize)> = None;
-        for (ci, curve) in self.curves.iter().enumerate() {
-            for (k, seg) in curve.polyline.windows(2).enumerate() {
-                let d = crate::intersect::point_segment_distance(u, seg[0], seg[1]);
-                if best.is_none_or(|(b, _, _)| d < b) {
-                    best = Some((d, ci, k));
-                }
-            }
-        }
-        let (_, ci, k) = best?;
-        let curve = &self.curves[ci];
-        if curve.points.is_empty() {
+        let (_, ci, k) = (0..self.curves.len())
+            .filter_map(|ci| self.nearest_segment(ci, u).map(|(d, k)| (d, ci, k)))
+            .fold(None, |best: Option<(f64, usize, usize)>, c| match best {
+                Some(b) if b.0 <= c.0 => Some(b),
+                _ => Some(c),
+            })?;
+        let points = &self.curves[ci].points;
+        if points.is_empty() {
             return None;
         }
-        let last = curve.points.len() - 1;
+        let (start, end) = self.segment_span(ci, k);
+        let r2 = radius * radius;
+        let d2 = |p: &[f64; 2]| (p[0] - u[0]).powi(2) + (p[1] - u[1]).powi(2);
+        let (mut lo, mut hi) = (start, end);
+        while lo > 0 && d2(&points[lo - 1]) <= r2 {
+            lo -= 1;
+        }
+        while hi + 1 < points.len() && d2(&points[hi + 1]) <= r2 {
+            hi += 1;
+        }
+        Some((ci, lo, hi))
+    }
+
+    /// Distance to `u` and index of the polyline segment of curve `ci` nearest `u`
+    /// (the first of equals).
+    fn nearest_segment(&self, ci: usize, u: [f64; 2]) -> Option<(f64, usize)> {
+        let mut best: Option<(f64, usize)> = None;
+        for (k, seg) in self.curves[ci].polyline.windows(2).enumerate() {
+            let d = crate::intersect::point_segment_distance(u, seg[0], seg[1]);
+            if best.is_none_or(|(b, _)| d < b) {
+                best = Some((d, k));
+            }
+        }
+        best
+    }
+
+    /// The dense points `start..=end` between the two vertices of segment `k` of curve
+    /// `ci` (clamped to the curve).
+    fn segment_span(&self, ci: usize, k: usize) -> (usize, usize) {
+        let last = self.curves[ci].points.len().saturating_sub(1);
         let start = self.vertices[ci].get(k).copied().unwrap_or(0).min(last);
         let end = self.vertices[ci]
             .get(k + 1)
             .copied()
             .unwrap_or(last)
             .clamp(start, last);
-        let r2 = radius * radius;
-        let d2 = |p: &[f64; 2]| (p[0] - u[0]).powi(2) + (p[1] - u[1]).powi(2);
-        let (mut lo, mut hi) = (start, end);
-        while lo > 0 && d2(&curve.points[lo - 1]) <= r2 {
-            lo -= 1;
-        }
-        while hi + 1 < curve.points.len() && d2(&curve.points[hi + 1]) <= r2 {
-            hi += 1;
-        }
-        Some((ci, lo, hi))
+        (start, end)
     }
 }
 
