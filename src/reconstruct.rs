@@ -314,6 +314,25 @@ impl PlaneCurves {
         }
     }
 
+    /// The plane unknowns of one frame: its curves grouped by laser, laser 0 first, one
+    /// per laser that has curves (curves of a laser beyond the second are dropped).
+    /// The live solver and `reconstruct_curves` both group through here, so that they
+    /// make the same planes in the same order.
+    pub(crate) fn of_frame(frame: u32, curves: Vec<Curve>) -> Vec<PlaneCurves> {
+        let mut by_laser: [Vec<Curve>; 2] = [Vec::new(), Vec::new()];
+        for c in curves {
+            if let Some(slot) = by_laser.get_mut(c.laser as usize) {
+                slot.push(c);
+            }
+        }
+        by_laser
+            .into_iter()
+            .enumerate()
+            .filter(|(_, curves)| !curves.is_empty())
+            .map(|(laser, curves)| PlaneCurves::new(frame, laser as u8, curves))
+            .collect()
+    }
+
     /// The dense points around `u` of the curve (of this plane) whose polyline passes
     /// closest to `u`: the polyline's segment is found first (polylines are short),
     /// then only the dense points between its two vertices, widened by `radius`, are
@@ -494,20 +513,11 @@ pub fn reconstruct_curves(
     let frames_with_laser = per_frame.iter().filter(|c| !c.is_empty()).count();
 
     // Group curves into plane unknowns: one per (frame, laser).
-    let mut planes: Vec<PlaneCurves> = Vec::new();
-    for (frame, curves) in per_frame.into_iter().enumerate() {
-        let mut by_laser: [Vec<Curve>; 2] = [Vec::new(), Vec::new()];
-        for c in curves {
-            if let Some(slot) = by_laser.get_mut(c.laser as usize) {
-                slot.push(c);
-            }
-        }
-        for (laser, curves) in by_laser.into_iter().enumerate() {
-            if !curves.is_empty() {
-                planes.push(PlaneCurves::new(frame as u32, laser as u8, curves));
-            }
-        }
-    }
+    let planes: Vec<PlaneCurves> = per_frame
+        .into_iter()
+        .enumerate()
+        .flat_map(|(frame, curves)| PlaneCurves::of_frame(frame as u32, curves))
+        .collect();
     let curves_total: usize = planes.iter().map(|p| p.curves.len()).sum();
     let partner: Vec<Option<u32>> = (0..planes.len())
         .map(|i| {

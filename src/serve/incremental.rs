@@ -163,19 +163,10 @@ impl Incremental {
         self.counts.frames += 1;
         self.counts.curves += curves.len() as u64;
         let first_new = self.planes.len();
-        let mut by_laser: [Vec<Curve>; 2] = [Vec::new(), Vec::new()];
-        for c in curves {
-            if let Some(slot) = by_laser.get_mut(c.laser as usize) {
-                slot.push(c);
-            }
-        }
-        for (laser, curves) in by_laser.into_iter().enumerate() {
-            if !curves.is_empty() {
-                self.planes
-                    .push(PlaneCurves::new(frame, laser as u8, curves));
-                self.partner.push(None);
-                self.adjacency.push(Vec::new());
-            }
+        for plane in PlaneCurves::of_frame(frame, curves) {
+            self.planes.push(plane);
+            self.partner.push(None);
+            self.adjacency.push(Vec::new());
         }
         if self.planes.len() - first_new == 2 {
             self.partner[first_new] = Some(first_new as u32 + 1);
