@@ -6,6 +6,16 @@ use super::synthetic::{
 };
 use super::*;
 
+/// The problem of a synthetic scan's crossings, seen by a 1000 px focal length.
+fn problem<'a>(s: &'a SyntheticScan, crossings: &'a [Crossing]) -> Problem<'a> {
+    Problem {
+        focal_px: 1000.0,
+        num_curves: s.planes.len(),
+        crossings,
+        partner: &s.partner,
+    }
+}
+
 fn scan(num_crosses: usize, seed: u64) -> (SyntheticScan, Vec<Crossing>) {
     let s = random_scan(&ScanSpec {
         num_crosses,
@@ -42,12 +52,7 @@ fn plane_error(sol: &Solution, truth: &[Vector3<f64>]) -> (f64, f64, usize) {
 #[test]
 fn exact_crossings_give_the_planes_up_to_scale_for_global_and_extended_curves() {
     let (s, cr) = scan(40, 31);
-    let problem = Problem {
-        focal_px: 1000.0,
-        num_curves: s.planes.len(),
-        crossings: &cr,
-        partner: &s.partner,
-    };
+    let problem = problem(&s, &cr);
     let params = SolveParams {
         max_global_planes: 30,
         ..SolveParams::default()
@@ -78,12 +83,7 @@ fn the_focal_scale_of_a_flat_port_is_recovered() {
     for c in &mut cr {
         c.u = [c.u[0] * lambda, c.u[1] * lambda];
     }
-    let problem = Problem {
-        focal_px: 1000.0,
-        num_curves: s.planes.len(),
-        crossings: &cr,
-        partner: &s.partner,
-    };
+    let problem = problem(&s, &cr);
     let params = SolveParams {
         estimate_focal: true,
         ..SolveParams::default()
@@ -172,12 +172,7 @@ fn noisy_crossings_give_depths_within_half_a_percent() {
         c.u[0] += sigma * rng.normal();
         c.u[1] += sigma * rng.normal();
     }
-    let problem = Problem {
-        focal_px: 1000.0,
-        num_curves: s.planes.len(),
-        crossings: &cr,
-        partner: &s.partner,
-    };
+    let problem = problem(&s, &cr);
     let params = SolveParams {
         max_global_planes: 60,
         ..SolveParams::default()
@@ -218,12 +213,7 @@ fn a_disconnected_smaller_group_is_left_out() {
         .into_iter()
         .filter(|c| group(c.a) == group(c.b))
         .collect();
-    let problem = Problem {
-        focal_px: 1000.0,
-        num_curves: s.planes.len(),
-        crossings: &cr,
-        partner: &s.partner,
-    };
+    let problem = problem(&s, &cr);
     let sol = solve(&problem, &SolveParams::default()).expect("solvable");
     assert!(sol.global.iter().all(|&c| group(c)));
     for (c, p) in sol.planes.iter().enumerate() {
@@ -236,12 +226,7 @@ fn a_disconnected_smaller_group_is_left_out() {
 #[test]
 fn too_little_data_is_an_error_not_a_panic() {
     let (s, cr) = scan(2, 36);
-    let problem = Problem {
-        focal_px: 1000.0,
-        num_curves: s.planes.len(),
-        crossings: &cr,
-        partner: &s.partner,
-    };
+    let problem = problem(&s, &cr);
     assert!(solve(&problem, &SolveParams::default()).is_err());
     let bad = Problem {
         focal_px: 1000.0,
@@ -369,12 +354,7 @@ fn a_warm_start_from_an_earlier_solution_finds_the_same_planes() {
     for c in cr.iter_mut().step_by(37) {
         c.u[0] += 0.02;
     }
-    let problem = Problem {
-        focal_px: 1000.0,
-        num_curves: s.planes.len(),
-        crossings: &cr,
-        partner: &s.partner,
-    };
+    let problem = problem(&s, &cr);
     let params = SolveParams {
         max_global_planes: 60,
         ..SolveParams::default()
