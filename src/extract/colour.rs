@@ -73,6 +73,25 @@ impl LaserColour {
         }
     }
 
+    /// The RGB channels this laser's light is in: those that are the largest channel
+    /// of some hue in its range (red for hues 300–60°, green for 60–180°, blue for
+    /// 180–300°). Red and green lasers light one channel each; a yellow one both.
+    pub fn channels(&self) -> [bool; 3] {
+        let mut channels = [false; 3];
+        for step in 0..=720 {
+            let hue = 0.5 * step as f32;
+            if self.contains_hue(hue % 360.0) {
+                let c = match hue % 360.0 {
+                    h if !(60.0..300.0).contains(&h) => 0,
+                    h if h < 180.0 => 1,
+                    _ => 2,
+                };
+                channels[c] = true;
+            }
+        }
+        channels
+    }
+
     fn contains_hue(&self, hue_deg: f32) -> bool {
         let [from, to] = self.hue_deg;
         if from <= to {
@@ -133,6 +152,8 @@ pub struct ColourLut {
     table: Vec<u8>,
     min_value: u8,
     mask_value: u8,
+    /// Per laser: the channels its light is in (see [`LaserColour::channels`]).
+    channels: Vec<[bool; 3]>,
 }
 
 impl ColourLut {
@@ -163,6 +184,7 @@ impl ColourLut {
             table,
             min_value: params.min_value,
             mask_value: params.mask_value,
+            channels: lasers.iter().map(LaserColour::channels).collect(),
         }
     }
 
@@ -180,19 +202,24 @@ impl ColourLut {
     }
 
     /// Response of laser `laser` to one pixel's difference, and whether the pixel is
-    /// another laser's: the difference's HSV value when the pixel is weak, white or of
-    /// that laser's colour, or of another laser's colour but below `mask_value`; zero
-    /// on any other colour. So the two stripes of a cross stay apart where they cross,
-    /// and the detector can drop points whose smoothing window reaches into the other
-    /// laser's stripe.
+    /// another laser's: the difference in the laser's own channels (the largest of
+    /// them) when the pixel is weak, white or of that laser's colour, or of another
+    /// laser's colour but below `mask_value`; zero on any other colour. So the two
+    /// stripes of a cross stay apart where they cross, the detector can drop points
+    /// whose smoothing window reaches into the other laser's stripe, and the other
+    /// sheet's glow under water (in its own channels) neither raises nor hides this
+    /// laser's faint stripe.
     #[inline]
     pub fn response(&self, laser: u8, dr: u8, dg: u8, db: u8) -> (u8, bool) {
-        let v = dr.max(dg).max(db);
+        let [r, g, b] = self.channels[laser as usize];
+        let own = (dr * u8::from(r))
+            .max(dg * u8::from(g))
+            .max(db * u8::from(b));
         match self.classify(dr, dg, db) {
-            None => (v, false),
-            Some(c) if c == laser || c == Class::White as u8 => (v, false),
+            None => (own, false),
+            Some(c) if c == laser || c == Class::White as u8 => (own, false),
             Some(c) if c == Class::Other as u8 => (0, false),
-            Some(_) if v < self.mask_value => (v, false),
+            Some(_) if dr.max(dg).max(db) < self.mask_value => (own, false),
             Some(_) => (0, true),
         }
     }
@@ -233,12 +260,29 @@ mod tests {
         assert_eq!(lut.response(0, 10, 220, 30), (0, true));
         assert_eq!(lut.response(1, 10, 220, 30), (220, false));
         assert_eq!(lut.response(1, 250, 250, 240), (250, false));
-        assert_eq!(lut.response(1, 10, 5, 3), (10, false));
+        assert_eq!(lut.response(1, 10, 5, 3), (5, false));
         assert_eq!(lut.response(1, 20, 30, 200), (0, false));
-        // Green too dim to be green's stripe (its glow) is a weak pixel for red.
+        // Green too dim to be green's stripe (its glow) is a weak pixel for red, which
+        // sees only its own channel of it.
         assert_eq!(lut.classify(5, 20, 8), Some(Class::Laser1 as u8));
-        assert_eq!(lut.response(0, 5, 20, 8), (20, false));
+        assert_eq!(lut.response(0, 5, 20, 8), (5, false));
+        // A faint green stripe on the red sheet's glow stands out for green by its
+        // green alone.
+        assert_eq!(lut.response(1, 9, 13, 0).0 - lut.response(1, 9, 3, 0).0, 10);
         assert_eq!(lut.response(0, 5, 25, 8), (0, true));
+    }
+
+    #[test]
+    fn channels_of_laser_hues() {
+        assert_eq!(LaserColour::red().channels(), [true, false, false]);
+        assert_eq!(LaserColour::green().channels(), [false, true, false]);
+        assert_eq!(LaserColour::blue().channels(), [false, false, true]);
+        let yellow = LaserColour {
+            name: "yellow".into(),
+            hue_deg: [40.0, 80.0],
+            display_rgb: [255, 255, 0],
+        };
+        assert_eq!(yellow.channels(), [true, true, false]);
     }
 
     #[test]
