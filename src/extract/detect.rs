@@ -91,12 +91,70 @@ struct Level {
     kernels: Kernels,
     /// Points whose window of this radius holds a masked pixel are dropped.
     mask_radius: usize,
+    /// Distance (px) across the line at which a ridge point's flanks are sampled.
+    flank_px: f32,
     per_grey: f32,
     max_width_px: f64,
 }
 
 /// Margin around an active tile over which its stripe width is measured.
 const WIDTH_MARGIN: usize = 8;
+
+/// Level (share of the window's maximum) of the top band of [`Detector::stripe_width`].
+const TOP_LEVEL: f32 = 0.8;
+/// Width of a Gaussian's band above [`TOP_LEVEL`] of its peak over its FWHM:
+/// `√(ln(1 / 0.8) / ln 2)`.
+const TOP_TO_HALF_WIDTH: f64 = 0.567;
+/// A top band narrower than this share of the half-maximum band (after the Gaussian's
+/// own ratio) means a stripe on a pedestal.
+const PEDESTAL_RATIO: f64 = 0.6;
+
+/// Integer moments of a band of pixels about the window's corner: exact, and at most
+/// 48² pixels.
+#[derive(Default)]
+struct BandMoments {
+    n: i64,
+    sx: i64,
+    sy: i64,
+    sxx: i64,
+    sxy: i64,
+    syy: i64,
+}
+
+impl BandMoments {
+    fn add(&mut self, i: i64, j: i64) {
+        self.n += 1;
+        self.sx += i;
+        self.sy += j;
+        self.sxx += i * i;
+        self.sxy += i * j;
+        self.syy += j * j;
+    }
+
+    /// Width across of the band: `√12` times the square root of the smaller eigenvalue
+    /// of the covariance of its positions (a band `w` wide has `w² / 12`).
+    fn width(&self) -> f64 {
+        if self.n < 3 {
+            return self.n as f64;
+        }
+        let nf = self.n as f64;
+        let (mx, my) = (self.sx as f64 / nf, self.sy as f64 / nf);
+        let cxx = self.sxx as f64 / nf - mx * mx;
+        let cxy = self.sxy as f64 / nf - mx * my;
+        let cyy = self.syy as f64 / nf - my * my;
+        let half_trace = 0.5 * (cxx + cyy);
+        let disc = (0.25 * (cxx - cyy) * (cxx - cyy) + cxy * cxy).sqrt();
+        (12.0 * (half_trace - disc).max(0.0)).sqrt()
+    }
+}
+
+/// A ridge point's flanks are sampled this many smoothing scales `σ` (at least 2 px)
+/// away across the line: a Gaussian stripe as wide as its scale is made for
+/// (`2√3 σ`) has fallen to a quarter there, a narrower one further.
+const FLANK_SIGMAS: f64 = 2.5;
+/// Neither flank of a ridge point may exceed this share of its centre
+/// ([`Detector::stands_out`]).
+const FLANK_RATIO: f32 = 0.5;
 
 /// A pixel rectangle `[x0, x1, y0, y1)`; empty when `x0 >= x1`.
 type Rect = [usize; 4];
@@ -144,6 +202,7 @@ impl Detector {
             .map(|s| Level {
                 kernels: Kernels::new(s.sigma_px),
                 mask_radius: (2.5 * s.sigma_px).ceil() as usize,
+                flank_px: (FLANK_SIGMAS * s.sigma_px).max(2.0) as f32,
                 per_grey: s.eigenvalue_per_grey_level as f32,
                 max_width_px: s.max_width_px,
             })
@@ -199,13 +258,32 @@ impl Detector {
     pub fn prepare(
         &mut self,
         active: &[bool],
-        mut fill: impl FnMut(usize, usize, &mut [f32], &mut [u8]),
+        fill: &mut impl FnMut(usize, usize, &mut [f32], &mut [u8]),
     ) {
         self.filled_box.fill(EMPTY);
+        self.response_box.fill(EMPTY);
+        self.add_tiles(active, fill);
+    }
+
+    /// As [`Self::prepare`] for the tiles `more` (none of them active before), keeping
+    /// what the earlier tiles filled: [`Self::detect_more`] then finds their points.
+    pub fn extend(
+        &mut self,
+        more: &[bool],
+        fill: &mut impl FnMut(usize, usize, &mut [f32], &mut [u8]),
+    ) {
+        self.add_tiles(more, fill);
+    }
+
+    fn add_tiles(
+        &mut self,
+        tiles: &[bool],
+        fill: &mut impl FnMut(usize, usize, &mut [f32], &mut [u8]),
+    ) {
         if self.levels.len() > 1 {
-            self.mark_boxes(active, |_| WIDTH_MARGIN);
-            self.fill_boxes(&mut fill);
-            for (t, _) in active.iter().enumerate().filter(|(_, a)| **a) {
+            self.mark_boxes(tiles, |_| WIDTH_MARGIN);
+            self.fill_boxes(fill);
+            for (t, _) in tiles.iter().enumerate().filter(|(_, a)| **a) {
                 let width = self.stripe_width(t);
                 let last = self.levels.len() - 1;
                 let level = self
@@ -216,15 +294,17 @@ impl Detector {
                 self.tile_level[t] = level as u8;
             }
         } else {
-            self.tile_level.fill(0);
+            for (t, _) in tiles.iter().enumerate().filter(|(_, a)| **a) {
+                self.tile_level[t] = 0;
+            }
         }
-        self.mark_boxes_by_level(active);
-        self.fill_boxes(&mut fill);
+        self.mark_boxes_by_level(tiles);
+        self.fill_boxes(fill);
     }
 
-    /// Response boxes: every active tile and the margin `margin(t)` around it.
+    /// Adds to the response boxes every tile of `active` and the margin `margin(t)`
+    /// around it.
     fn mark_boxes(&mut self, active: &[bool], margin: impl Fn(usize) -> usize) {
-        self.response_box.fill(EMPTY);
         let (tx_n, ty_n) = (self.tiles_x as isize, self.tiles_y as isize);
         for (t, _) in active.iter().enumerate().filter(|(_, a)| **a) {
             let r = margin(t);
@@ -302,6 +382,14 @@ impl Detector {
     /// `w² / 12` for a band `w` wide, whatever its direction, and the window cutting
     /// the band's length does not change it. A curve or a blob only widens it, which
     /// errs towards a larger scale.
+    ///
+    /// A stripe on a pedestal (under water, the glow of its own sheet lies along one
+    /// side of it) would give the pedestal's width, and a scale that merges the two
+    /// into one ridge in the middle of the glow. So the band above [`TOP_LEVEL`] of the
+    /// maximum is measured too: on a Gaussian stripe it is [`TOP_TO_HALF_WIDTH`] as
+    /// wide as the half-maximum band, on a flat top about as wide; when it is much
+    /// narrower than that ([`PEDESTAL_RATIO`]), the stripe is the peak on top and its
+    /// width is taken from the top band.
     fn stripe_width(&self, t: usize) -> f64 {
         let (x0, x1, y0, y1) = self.tile_bounds(t);
         let m = WIDTH_MARGIN;
@@ -317,34 +405,28 @@ impl Detector {
         if peak <= 0.0 {
             return 0.0;
         }
-        let half = 0.5 * peak;
-        // Integer moments about the window's corner: exact, and at most 48² pixels.
-        let (mut n, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0i64, 0i64, 0, 0, 0, 0);
+        let (half, top) = (0.5 * peak, TOP_LEVEL * peak);
+        let mut half_band = BandMoments::default();
+        let mut top_band = BandMoments::default();
         for (j, y) in (ya..yb).enumerate() {
-            let j = j as i64;
             for (i, &v) in self.response[y * w + xa..y * w + xb].iter().enumerate() {
                 if v >= half {
-                    let i = i as i64;
-                    n += 1;
-                    sx += i;
-                    sy += j;
-                    sxx += i * i;
-                    sxy += i * j;
-                    syy += j * j;
+                    half_band.add(i as i64, j as i64);
+                    if v >= top {
+                        top_band.add(i as i64, j as i64);
+                    }
                 }
             }
         }
-        if n < 3 {
-            return n as f64;
+        let width = half_band.width();
+        if top_band.n >= 3 {
+            // The pixel grid widens a sampled band by a pixel's own second moment (1/12).
+            let top_width = (top_band.width().powi(2) + 1.0).sqrt() / TOP_TO_HALF_WIDTH;
+            if top_width < PEDESTAL_RATIO * width {
+                return top_width;
+            }
         }
-        let nf = n as f64;
-        let (mx, my) = (sx as f64 / nf, sy as f64 / nf);
-        let cxx = sxx as f64 / nf - mx * mx;
-        let cxy = sxy as f64 / nf - mx * my;
-        let cyy = syy as f64 / nf - my * my;
-        let half_trace = 0.5 * (cxx + cyy);
-        let disc = (0.25 * (cxx - cyy) * (cxx - cyy) + cxy * cxy).sqrt();
-        (12.0 * (half_trace - disc).max(0.0)).sqrt()
+        width
     }
 
     /// Finds ridge points of strength (grey levels) at least `min_strength` on the
@@ -355,6 +437,12 @@ impl Detector {
             self.index[p.pixel as usize] = NO_POINT;
         }
         self.points.clear();
+        self.detect_more(active, min_strength);
+    }
+
+    /// Adds the ridge points of the tiles `more` (after [`Self::extend`]) to those found
+    /// so far.
+    pub fn detect_more(&mut self, active: &[bool], min_strength: f32) {
         // Taken out for the loop, so that the tiles of a scale can be listed while the
         // passes borrow the detector.
         let tile_level = std::mem::take(&mut self.tile_level);
@@ -494,6 +582,40 @@ impl Detector {
         })
     }
 
+    /// Whether the response at `p` stands above both its flanks, `flank_px` away
+    /// along the normal `n`: each flank at most [`FLANK_RATIO`] of the centre, each
+    /// value the mean of three samples along the line. A stripe (on a dark background
+    /// or on a pedestal beside it) does; the bright edge of a wide glow band, whose
+    /// Hessian also reads as a ridge, has the glow on one flank and does not.
+    fn stands_out(
+        response: &[f32],
+        (w, h): (usize, usize),
+        p: [f32; 2],
+        n: [f32; 2],
+        flank_px: f32,
+    ) -> bool {
+        let at = |x: f32, y: f32| -> f32 {
+            let (xf, yf) = (x.floor(), y.floor());
+            let (fx, fy) = (x - xf, y - yf);
+            let (x0, y0) = (xf as isize, yf as isize);
+            let px = |xx: isize, yy: isize| {
+                let xx = xx.clamp(0, w as isize - 1) as usize;
+                let yy = yy.clamp(0, h as isize - 1) as usize;
+                response[yy * w + xx]
+            };
+            (px(x0, y0) * (1.0 - fx) + px(x0 + 1, y0) * fx) * (1.0 - fy)
+                + (px(x0, y0 + 1) * (1.0 - fx) + px(x0 + 1, y0 + 1) * fx) * fy
+        };
+        // Mean of three samples along the line (the tangent is (−ny, nx)).
+        let mean = |d: f32| -> f32 {
+            let (cx, cy) = (p[0] + d * n[0], p[1] + d * n[1]);
+            (at(cx - n[1], cy + n[0]) + at(cx, cy) + at(cx + n[1], cy - n[0])) / 3.0
+        };
+        let centre = mean(0.0);
+        let limit = FLANK_RATIO * centre;
+        mean(flank_px) <= limit && mean(-flank_px) <= limit
+    }
+
     fn column_pass_and_hessian(&mut self, level: usize, t: usize, min_strength: f32) {
         let (x0, x1, y0, y1) = self.tile_bounds(t);
         let (w, h) = (self.width, self.height);
@@ -501,10 +623,11 @@ impl Detector {
         let Level {
             kernels,
             mask_radius,
+            flank_px,
             per_grey,
             ..
         } = &self.levels[level];
-        let (mask_radius, per_grey) = (*mask_radius, *per_grey);
+        let (mask_radius, flank_px, per_grey) = (*mask_radius, *flank_px, *per_grey);
         let (gx, rest) = self.acc.split_at_mut(self.tile);
         let (gy, rest) = rest.split_at_mut(self.tile);
         let (gxx, rest) = rest.split_at_mut(self.tile);
@@ -662,11 +785,15 @@ impl Detector {
                 {
                     continue;
                 }
+                let (px, py) = (x as f32 + ox, y as f32 + oy);
+                if !Self::stands_out(&self.response, (w, h), [px, py], [nx, ny], flank_px) {
+                    continue;
+                }
                 let pixel = y * w + x;
                 self.index[pixel] = self.points.len() as u32;
                 self.points.push(LinePoint {
-                    x: x as f32 + ox,
-                    y: y as f32 + oy,
+                    x: px,
+                    y: py,
                     nx,
                     ny,
                     strength: -lambda / per_grey,

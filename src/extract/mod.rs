@@ -10,19 +10,28 @@
 //! 1. *Colour* (input-format specific, RGB here): the positive part of
 //!    `frame − background` is classified per pixel through an RGB look-up table built
 //!    from HSV limits ([`colour::ColourLut`]); tiles holding a pixel of laser `k`'s
-//!    colour become active for laser `k`. Laser `k`'s response is the difference's HSV
-//!    value on pixels that are weak, white (desaturated) or of `k`'s colour, and zero on
-//!    the other laser's colour where that is bright enough to be its stripe
-//!    (`high_contrast`), so the two stripes of the cross stay apart; dimmer pixels of
-//!    the other colour (its sheet's glow under water) count as weak and leave no holes
-//!    beside the stripe.
+//!    colour become active for laser `k`. Laser `k`'s response is the difference in
+//!    `k`'s own channels (the largest of them: red for a red laser, red and green for a
+//!    yellow one; [`LaserColour::channels`]) on pixels that are weak, white
+//!    (desaturated) or of `k`'s colour, and zero on the other laser's colour where that
+//!    is bright enough to be its stripe (`high_contrast`), so the two stripes of the
+//!    cross stay apart; dimmer pixels of the other colour (its sheet's glow under
+//!    water) count as weak and leave no holes beside the stripe, and since that glow is
+//!    in the other laser's channels it neither hides nor fakes `k`'s faint stripe.
 //! 2. *Ridges* (per laser, active tiles only): separable Gaussian derivatives, the
 //!    Hessian, its eigenvector across the line, the second-order Taylor offset
 //!    `t = −(n·∇g)/λ` that must stay in the pixel (`|t·n| ≤ 0.5` in both axes), for
-//!    bright lines only (`λ < 0` and the strongest curvature).
+//!    bright lines only (`λ < 0` and the strongest curvature). A point must also stand
+//!    out of its flanks, `2.5 σ` to either side across the line, by twice: the bright
+//!    edge of a wide glow band also reads as a ridge, with the glow on one flank.
 //! 3. *Linking* with hysteresis (`low_contrast` to continue, `high_contrast` to start),
 //!    fragments shorter than `min_curve_length_px` dropped, points undistorted one by
 //!    one, Douglas–Peucker simplification in undistorted pixel units.
+//! 4. *Following*: the tiles half a tile and a tile beyond each curve's ends along its
+//!    direction are activated, their points found and everything linked again, for up
+//!    to `MAX_FOLLOW_ROUNDS` (32) rounds while curves grow: a stripe fading below
+//!    `min_value` (far along the sheet under water) activates no tile of its own, but
+//!    hysteresis may follow it down to `low_contrast`.
 //!
 //! # Scale
 //! With no `line_width_px` (the default) each active tile measures its stripe's width
@@ -30,7 +39,10 @@
 //! form a band whose second moment across is `w² / 12`, whatever its direction. The
 //! tile then runs at the smallest scale of [`AUTO_SIGMAS_PX`] with `2√3 σ ≥ w` (Steger's
 //! bar condition `σ ≥ (w/2)/√3`, which keeps a clipped flat top a single ridge); the
-//! Gaussian stripe's ln-g offset is exact at any `σ`. A given `line_width_px` forces
+//! Gaussian stripe's ln-g offset is exact at any `σ`. A stripe on a pedestal (its
+//! sheet's glow along one side of it under water) would give the pedestal's width, so
+//! the band above 80 % of the maximum is measured too; when it is much narrower than a
+//! Gaussian's, the width comes from it. A given `line_width_px` forces
 //! `σ = max(w / (2√3), 1)`, and `sigma_px` forces `σ`.
 //!
 //! # Thresholds
@@ -231,6 +243,13 @@ impl ExtractParams {
     }
 }
 
+/// Rounds of following curves into the tiles ahead of their ends: each round reaches
+/// up to one tile further, so a faint tail is followed for up to this many tiles.
+const MAX_FOLLOW_ROUNDS: usize = 32;
+
+/// Points back from a curve's end over which its direction there is taken.
+const FOLLOW_DIRECTION_POINTS: usize = 8;
+
 /// Smoothing scales (px) of the automatic width: each takes the stripes up to
 /// `2√3 σ` wide (Steger's bar condition `σ ≥ w_half / √3`), so FWHM ≤ 3.5, 4.5, 5.9,
 /// 7.6, 9.7, 12.1 and 15.6 px; wider stripes get the last scale. Steps of ~1.3 keep
@@ -339,13 +358,17 @@ pub struct ExtractStats {
     pub active_tiles: usize,
     /// Ridge points found, summed over the lasers.
     pub ridge_points: usize,
+    /// Tiles activated by following curves out of the active ones, summed over the
+    /// lasers and rounds.
+    pub follow_tiles: usize,
 }
 
 /// The per-frame extractor; owns and reuses all its scratch buffers.
 pub struct Extractor {
     params: ExtractParams,
     camera: Camera,
-    lut: ColourLut,
+    /// Shared so that a frame's response filler can hold it while the extractor links.
+    lut: std::sync::Arc<ColourLut>,
     detector: Detector,
     linker: Linker,
     active: Vec<Vec<bool>>,
@@ -391,7 +414,7 @@ impl Extractor {
             grown: vec![false; tiles],
             params: params.clone(),
             camera: camera.clone(),
-            lut,
+            lut: std::sync::Arc::new(lut),
             detector,
             linker: Linker::default(),
             stats: ExtractStats::default(),
@@ -438,19 +461,93 @@ impl Extractor {
                 });
             }
         }
-        self.activate_rgb(frame, background.image());
+        self.extract_from(&mut WholeFrame(frame), background.image())
+    }
+
+    /// The curves of `src`'s frame (of the camera's size) against `background`.
+    fn extract_from(
+        &mut self,
+        src: &mut dyn TileFrame,
+        background: &RgbImage,
+    ) -> Result<Vec<Curve>, ExtractError> {
+        self.activate_rgb(src.frame(), background);
         let mut curves = Vec::new();
         self.stats = ExtractStats::default();
+        let lut = std::sync::Arc::clone(&self.lut);
         for laser in 0..self.params.lasers.len() {
-            let fill = response_rgb(&self.lut, laser as u8, frame, background.image());
-            self.detector.prepare(&self.active[laser], fill);
+            self.detector.prepare(
+                &self.active[laser],
+                &mut response_rgb(&lut, laser as u8, src.frame(), background),
+            );
             self.detector
                 .detect(&self.active[laser], self.params.low_contrast);
+            let first = curves.len();
+            self.link_into(laser as u8, &mut curves);
+            // Follow the curves out of the active tiles: a stripe fading below
+            // `min_value` (a faint tail under water) activates no tile of its own.
+            for _ in 0..MAX_FOLLOW_ROUNDS {
+                if !self.tiles_ahead(laser, &curves[first..]) {
+                    break;
+                }
+                self.stats.follow_tiles += self.grown.iter().filter(|g| **g).count();
+                src.ensure(&self.grown, self.detector.tiles_x, self.detector.tiles_y);
+                let mut fill = response_rgb(&lut, laser as u8, src.frame(), background);
+                self.detector.extend(&self.grown, &mut fill);
+                self.detector
+                    .detect_more(&self.grown, self.params.low_contrast);
+                for (a, g) in self.active[laser].iter_mut().zip(&self.grown) {
+                    *a |= *g;
+                }
+                curves.truncate(first);
+                self.link_into(laser as u8, &mut curves);
+            }
             self.stats.active_tiles += self.active[laser].iter().filter(|a| **a).count();
             self.stats.ridge_points += self.detector.points.len();
-            self.link_into(laser as u8, &mut curves);
         }
         Ok(curves)
+    }
+
+    /// Marks in `self.grown` the inactive tiles of laser `laser` that lie ahead of an
+    /// end of one of `curves` (half a tile and one tile beyond it, along the curve's
+    /// direction over its last few points); whether there is any.
+    fn tiles_ahead(&mut self, laser: usize, curves: &[Curve]) -> bool {
+        self.grown.fill(false);
+        let det = &self.detector;
+        let (tile, tiles_x) = (det.tile as f32, det.tiles_x);
+        let (w, h) = (det.width as f32, det.height as f32);
+        let mut any = false;
+        for c in curves {
+            let n = c.points_px.len();
+            if n < 2 {
+                continue;
+            }
+            let back = FOLLOW_DIRECTION_POINTS.min(n - 1);
+            for (end, from) in [
+                (c.points_px[n - 1], c.points_px[n - 1 - back]),
+                (c.points_px[0], c.points_px[back]),
+            ] {
+                let (dx, dy) = (end[0] - from[0], end[1] - from[1]);
+                let len = (dx * dx + dy * dy).sqrt();
+                if len <= 0.0 {
+                    continue;
+                }
+                for step in [0.5, 1.0] {
+                    let (x, y) = (
+                        end[0] + dx / len * step * tile,
+                        end[1] + dy / len * step * tile,
+                    );
+                    if !(x >= 0.0 && y >= 0.0 && x < w && y < h) {
+                        continue;
+                    }
+                    let t = (y / tile) as usize * tiles_x + (x / tile) as usize;
+                    if !self.active[laser][t] && !self.grown[t] {
+                        self.grown[t] = true;
+                        any = true;
+                    }
+                }
+            }
+        }
+        any
     }
 
     /// Marks, per laser, the tiles holding a pixel of that laser's colour, and the
@@ -565,6 +662,26 @@ impl Extractor {
             },
         );
     }
+}
+
+/// The frame an extraction reads: whole (RGB input), or converted tile by tile where
+/// a stripe can be (YUYV input, see [`yuyv`]).
+pub(crate) trait TileFrame {
+    fn frame(&self) -> &RgbImage;
+    /// Makes the tiles marked in `tiles` (`tiles_x` × `tiles_y` of the detector), and
+    /// the tiles next to them, hold the frame's own pixels: the detector's kernels
+    /// reach one tile beyond the tiles it runs on.
+    fn ensure(&mut self, tiles: &[bool], tiles_x: usize, tiles_y: usize);
+}
+
+/// An RGB frame, whole.
+struct WholeFrame<'a>(&'a RgbImage);
+
+impl TileFrame for WholeFrame<'_> {
+    fn frame(&self) -> &RgbImage {
+        self.0
+    }
+    fn ensure(&mut self, _: &[bool], _: usize, _: usize) {}
 }
 
 /// The RGB input's response filler for [`Detector::prepare`]: laser `laser`'s response

@@ -12,7 +12,7 @@
 
 use image::RgbImage;
 
-use super::{Background, Curve, ExtractError, Extractor};
+use super::{Background, Curve, ExtractError, Extractor, TileFrame};
 use crate::capture::dump::yuyv_row_to_rgb;
 
 /// Tiles around a candidate tile that are converted too: the detector's kernels and
@@ -183,34 +183,94 @@ impl Extractor {
                 }
             }
         }
-        let bg_raw = bg.as_raw();
-        let scratch: &mut [u8] = &mut yuv.scratch;
-        for (t, (&wanted, &was)) in want.iter().zip(&yuv.converted).enumerate() {
-            if !(wanted || was) {
-                continue;
+        // Restores first, then conversions: a tile's even-aligned span may reach one
+        // pixel into its neighbour.
+        let mut src = YuyvTiles {
+            scratch: std::mem::take(&mut yuv.scratch),
+            yuyv,
+            stride,
+            tile,
+            converted: std::mem::take(&mut yuv.converted),
+        };
+        for (t, &wanted) in want.iter().enumerate() {
+            if src.converted[t] && !wanted {
+                src.copy_tile(t, None, bg.as_raw());
+                src.converted[t] = false;
             }
+        }
+        for (t, _) in want.iter().enumerate().filter(|(_, w)| **w) {
+            src.copy_tile(t, Some(yuyv), bg.as_raw());
+            src.converted[t] = true;
+        }
+        // 3. The RGB pipeline on the scratch frame, which converts more tiles if a
+        //    curve is followed beyond these. Taken out of the extractor for the call.
+        let out = self.extract_from(&mut src, bg);
+        if let Some(yuv) = self.yuv.as_mut() {
+            yuv.scratch = src.scratch;
+            yuv.converted = src.converted;
+        }
+        out
+    }
+}
+
+/// The scratch frame of [`Extractor::extract_yuyv`]: the frame's pixels on the
+/// converted tiles, the background elsewhere.
+struct YuyvTiles<'a> {
+    scratch: RgbImage,
+    yuyv: &'a [u8],
+    stride: usize,
+    tile: usize,
+    /// Per tile: holds the frame's pixels.
+    converted: Vec<bool>,
+}
+
+impl YuyvTiles<'_> {
+    /// Writes tile `t` of the scratch frame from the YUYV frame (`Some`) or from the
+    /// background.
+    fn copy_tile(&mut self, t: usize, yuyv: Option<&[u8]>, background: &[u8]) {
+        let (w, h) = (
+            self.scratch.width() as usize,
+            self.scratch.height() as usize,
+        );
+        let tiles_x = w.div_ceil(self.tile);
+        let (tx, ty) = (t % tiles_x, t / tiles_x);
+        let (x0, x1) = (tx * self.tile, ((tx + 1) * self.tile).min(w));
+        // Even start and end: YUYV pairs share their chroma.
+        let (x0, x1) = (x0 & !1, (x1 + 1).min(w) & !1);
+        let scratch: &mut [u8] = &mut self.scratch;
+        for y in ty * self.tile..((ty + 1) * self.tile).min(h) {
+            let dst = &mut scratch[3 * (y * w + x0)..3 * (y * w + x1)];
+            match yuyv {
+                Some(yuyv) => yuyv_row_to_rgb(
+                    &yuyv[y * self.stride + 2 * x0..y * self.stride + 2 * x1],
+                    dst,
+                ),
+                None => dst.copy_from_slice(&background[3 * (y * w + x0)..3 * (y * w + x1)]),
+            }
+        }
+    }
+}
+
+impl TileFrame for YuyvTiles<'_> {
+    fn frame(&self) -> &RgbImage {
+        &self.scratch
+    }
+
+    fn ensure(&mut self, tiles: &[bool], tiles_x: usize, tiles_y: usize) {
+        let yuyv = self.yuyv;
+        for (t, _) in tiles.iter().enumerate().filter(|(_, m)| **m) {
             let (tx, ty) = (t % tiles_x, t / tiles_x);
-            let (x0, x1) = (tx * tile, ((tx + 1) * tile).min(w));
-            // Even start and end: YUYV pairs share their chroma.
-            let (x0, x1) = (x0 & !1, (x1 + 1).min(w) & !1);
-            for y in ty * tile..((ty + 1) * tile).min(h) {
-                let dst = &mut scratch[3 * (y * w + x0)..3 * (y * w + x1)];
-                if wanted {
-                    yuyv_row_to_rgb(&yuyv[y * stride + 2 * x0..y * stride + 2 * x1], dst);
-                } else {
-                    dst.copy_from_slice(&bg_raw[3 * (y * w + x0)..3 * (y * w + x1)]);
+            for yy in ty.saturating_sub(1)..(ty + 2).min(tiles_y) {
+                for xx in tx.saturating_sub(1)..(tx + 2).min(tiles_x) {
+                    let u = yy * tiles_x + xx;
+                    if !self.converted[u] {
+                        // The background is not needed: nothing is restored here.
+                        self.copy_tile(u, Some(yuyv), &[]);
+                        self.converted[u] = true;
+                    }
                 }
             }
         }
-        yuv.converted = want;
-        // 3. The RGB pipeline on the scratch frame. It is taken out for the call so
-        //    that the extractor can be borrowed mutably.
-        let frame = std::mem::take(&mut yuv.scratch);
-        let out = self.try_extract(&frame, background);
-        if let Some(yuv) = self.yuv.as_mut() {
-            yuv.scratch = frame;
-        }
-        out
     }
 }
 
@@ -238,9 +298,80 @@ mod tests {
 
     #[test]
     fn yuyv_extraction_equals_extraction_of_the_whole_converted_frame() {
-        let spec = builtin_scene("bricks")
+        yuyv_equals_whole("bricks", None, &[3, 20, 41, 42, 77]);
+    }
+
+    /// Under water stripes fade below `min_value`; the curves followed into tiles the
+    /// first pass did not convert must come out as from the whole frame.
+    #[test]
+    fn yuyv_extraction_follows_faint_tails_like_the_whole_frame() {
+        let followed = yuyv_equals_whole("pipes", Some(1.5), &[4, 62, 129, 200, 260]);
+        assert!(followed > 0, "no curve was followed");
+    }
+
+    /// A stripe fading to nothing along its length: the tiles where it is fainter than
+    /// `min_value` are neither candidates nor their margin, so the curve is followed
+    /// into tiles that only the on-demand conversion gives the frame's pixels.
+    #[test]
+    fn yuyv_extraction_converts_the_tiles_a_followed_curve_reaches() {
+        let (w, h) = (480u32, 270u32);
+        let camera = crate::camera::Camera::with_fov(w, h, 1.0);
+        let background_rgb = RgbImage::from_pixel(w, h, image::Rgb([40, 40, 40]));
+        let frame = RgbImage::from_fn(w, h, |x, y| {
+            // Contrast 60 at the left edge, 0 at the right; FWHM 3 px about row 135.3.
+            let c = 60.0 * (1.0 - x as f64 / w as f64);
+            let d = y as f64 - 135.3 - 0.02 * x as f64;
+            let g = 40.0 + c * (-4.0 * 2f64.ln() * d * d / 9.0).exp();
+            image::Rgb([40, g.round() as u8, 40])
+        });
+        let header = DumpHeader {
+            fourcc: *b"YUYV",
+            width: w,
+            height: h,
+            bytes_per_line: 2 * w,
+            interval_num: 1,
+            interval_den: 30,
+            device: "test".into(),
+            card: "test".into(),
+        };
+        let background =
+            Background::from_image(decode_rgb(&header, &yuyv_of(&background_rgb)).expect("bg"));
+        // Tiles activate, and are converted, only where the stripe reaches 30 (up to
+        // x ≈ 240, and two tiles beyond); curves go on down to 4 (x ≈ 450).
+        let params = ExtractParams {
+            low_contrast: 4.0,
+            min_value: 30,
+            ..ExtractParams::default()
+        };
+        let yuyv = yuyv_of(&frame);
+        let rgb = decode_rgb(&header, &yuyv).expect("decode");
+        let a = Extractor::new(&params, &camera)
+            .expect("extractor")
+            .extract(&rgb, &background);
+        let mut direct = Extractor::new(&params, &camera).expect("extractor");
+        let b = direct
+            .extract_yuyv(&yuyv, 2 * w as usize, &background)
+            .expect("yuyv");
+        assert_eq!(a, b);
+        // The curve runs well past the converted tiles.
+        let right = a
+            .iter()
+            .flat_map(|c| &c.points_px)
+            .map(|p| p[0])
+            .fold(0.0f32, f32::max);
+        assert!(right > 400.0, "the curve ends at x = {right}");
+    }
+
+    /// Extracts `frames` of a scene both ways, asserts equal curves, and returns the
+    /// tiles the extraction activated by following curves.
+    fn yuyv_equals_whole(scene: &str, turbidity: Option<f64>, frames: &[usize]) -> usize {
+        let mut spec = builtin_scene(scene)
             .expect("scene")
             .with_resolution(480, 270);
+        if let Some(t) = turbidity {
+            spec.water.turbidity = t;
+            spec.medium = crate::simulate::Medium::Water;
+        }
         let sim = Simulator::new(
             &spec,
             &SimParams {
@@ -265,8 +396,8 @@ mod tests {
         let background = Background::from_image(decode_rgb(&header, &bg_yuyv).expect("bg"));
         let mut whole = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
         let mut direct = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
-        let mut total = 0;
-        for i in [3, 20, 41, 42, 77] {
+        let (mut total, mut followed) = (0, 0);
+        for &i in frames {
             let (frame, _) = sim.render_frame(i);
             let yuyv = yuyv_of(&frame);
             let rgb = decode_rgb(&header, &yuyv).expect("decode");
@@ -275,6 +406,8 @@ mod tests {
                 .extract_yuyv(&yuyv, 2 * camera.width as usize, &background)
                 .expect("yuyv");
             assert_eq!(a, b, "frame {i}");
+            assert_eq!(whole.stats(), direct.stats(), "frame {i}");
+            followed += whole.stats().follow_tiles;
             total += a.len();
         }
         assert!(total >= 5, "the frames hold curves ({total})");
@@ -285,5 +418,6 @@ mod tests {
             .map_or(0, |y| y.converted.iter().filter(|c| **c).count());
         let tiles = direct.detector.tiles_x * direct.detector.tiles_y;
         assert!(converted < tiles, "{converted} of {tiles} tiles converted");
+        followed
     }
 }
