@@ -227,9 +227,9 @@ pub struct StageTimes {
 }
 
 /// What a reconstruction found; serialised as the `--report` JSON (with `version`).
-/// Within a version keys are only ever added (`crossings_in_solve`, the
-/// `triangulation.inconsistent_*` counts came later in version 1); readers should
-/// ignore keys they do not know.
+/// Within a version keys are only ever added (`crossings_in_solve`,
+/// `crossings_off_surface` and the `triangulation.inconsistent_*` counts came later in
+/// version 1); readers should ignore keys they do not know.
 #[derive(Clone, Debug, Serialize)]
 pub struct ReconstructReport {
     pub version: u32,
@@ -241,6 +241,10 @@ pub struct ReconstructReport {
     /// Crossings of two strong curves, which shape the planes
     /// (`solve.min_curve_strength`).
     pub crossings_in_solve: usize,
+    /// Of those, the crossings taken out before the second solve because the first
+    /// one showed their curves (or stretches of them) off the surface, their crossings
+    /// disagreeing together (see `cloud::check_crossings`).
+    pub crossings_off_surface: usize,
     pub planes_in_global_solve: usize,
     pub planes_solved: usize,
     pub rejected_crossings: usize,
@@ -607,7 +611,7 @@ pub fn reconstruct_curves(
             .unwrap_or(f32::INFINITY)
     };
     let min_local = config.solve.min_crossing_strength;
-    let strong: Vec<Crossing> = crossings
+    let (strong, strong_curves): (Vec<Crossing>, Vec<&cloud::CurveCrossing>) = crossings
         .iter()
         .zip(&curve_crossings)
         .filter(|(_, cc)| {
@@ -616,8 +620,9 @@ pub fn reconstruct_curves(
                 && local_strength(cc.a, cc.at[0]) >= min_local
                 && local_strength(cc.b, cc.at[1]) >= min_local
         })
-        .map(|(c, _)| *c)
-        .collect();
+        .map(|(c, cc)| (*c, cc))
+        .unzip();
+    let mut recheck_dropped = 0;
     times.intersect_s = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
@@ -631,6 +636,34 @@ pub fn reconstruct_curves(
     let solution: Solution = match source {
         PlaneSource::SelfCalibrated => {
             let mut sol = solve::solve(&problem, &config.solve)?;
+            // Consensus of whole curves, then a re-solve: a curve off the surface (the
+            // glow of its sheet in turbid water, a reflection) has crossings that are
+            // each only a little off, too little for the solver's per-crossing
+            // rejection, but its crossings disagree together. Those curves, and the
+            // stretches of curves that run off the surface, leave the solve.
+            let planes_now: Vec<Option<Vector3<f64>>> = curve_plane
+                .iter()
+                .map(|&p| sol.planes.get(p as usize).copied().flatten())
+                .collect();
+            let check =
+                cloud::check_crossings(&planes_now, &curve_crossings, &faint, &config.triangulate);
+            let agreed: Vec<Crossing> = strong
+                .iter()
+                .zip(&strong_curves)
+                .filter(|(_, cc)| {
+                    check.keeps(cc.a as usize, cc.at[0]) && check.keeps(cc.b as usize, cc.at[1])
+                })
+                .map(|(c, _)| *c)
+                .collect();
+            if agreed.len() < strong.len() {
+                recheck_dropped = strong.len() - agreed.len();
+                tracing::debug!(recheck_dropped, "re-solving without off-surface curves");
+                let problem = Problem {
+                    crossings: &agreed,
+                    ..problem
+                };
+                sol = solve::solve(&problem, &config.solve)?;
+            }
             let sequence: Vec<(u32, u8)> = planes.iter().map(|p| (p.frame, p.laser)).collect();
             motion_fill = solve::motion::fill_and_extend(
                 &problem,
@@ -743,6 +776,7 @@ pub fn reconstruct_curves(
         planes: planes.len(),
         crossings: crossings.len(),
         crossings_in_solve: strong.len(),
+        crossings_off_surface: recheck_dropped,
         planes_in_global_solve: solution.global.len(),
         planes_solved: solution.planes.iter().filter(|p| p.is_some()).count(),
         rejected_crossings: solution.rejected_crossings.len(),
@@ -860,6 +894,9 @@ mod tests {
         let rec = run(per_frame, &Config::default());
         let r = &rec.report;
         assert_eq!(r.triangulation.inconsistent_curves, 2, "{r:?}");
+        // The strong stray's crossings shaped the first solve only.
+        assert!(r.crossings_off_surface > 0, "{r:?}");
+        assert!(r.crossings_off_surface < r.crossings_in_solve / 10, "{r:?}");
         assert!(r.crossings_in_solve < without_local_gate.crossings_in_solve);
         assert!(without_local_gate.crossings_in_solve < r.crossings);
         assert_eq!(without_local_gate.crossings, r.crossings);
