@@ -27,6 +27,8 @@
 //!    (and its partner's orthogonality), in passes until no more can be solved.
 //! 6. Refinement: Gauss–Seidel rounds re-fitting each extended curve from all its
 //!    solved neighbours. The global subset stays fixed, which keeps the gauge and scale.
+//! 7. `refit_shift`: `w` (and `λ`) once more from the orthogonality of every cross
+//!    with both planes solved, the extended ones included, applied to all planes.
 //!
 //! # Conventions of the result
 //! Planes are returned in the *corrected* normalised coordinates `(x/λ, y/λ, 1)` of a
@@ -599,6 +601,67 @@ pub fn extend_and_refine(
     (rejected_crossings, rejected_curves)
 }
 
+/// Stage 7: the shift `w` (and `λ`) again, from the crosses of every solved plane.
+/// Extended planes follow the global ones through their crossings, so all solved
+/// planes are still one family `v + w`; their crosses add orthogonality constraints
+/// that the global subset alone lacks (under water, where fewer curves qualify for it,
+/// about as many again). `planes` (given coordinates) are shifted and rescaled to a
+/// median inverse depth of 1 over `scale_crossings`; returns the fit, or `None`
+/// (planes untouched) when it fails or would use no more than `global_crosses`.
+fn refit_shift(
+    problem: &Problem,
+    planes: &mut [Option<Vector3<f64>>],
+    scale_crossings: &[usize],
+    global_crosses: usize,
+    params: &SolveParams,
+) -> Option<ortho::Orthogonality> {
+    let solved: Vec<usize> = (0..planes.len()).filter(|&c| planes[c].is_some()).collect();
+    let mut local = vec![usize::MAX; planes.len()];
+    for (i, &c) in solved.iter().enumerate() {
+        local[c] = i;
+    }
+    let crosses: Vec<(usize, usize)> = solved
+        .iter()
+        .filter_map(|&c| {
+            let p = problem.partner.get(c).copied().flatten()? as usize;
+            (c < p && planes.get(p).is_some_and(Option::is_some)).then(|| (local[c], local[p]))
+        })
+        .collect();
+    if crosses.len() <= global_crosses {
+        return None;
+    }
+    let v: Vec<Vector3<f64>> = solved.iter().filter_map(|&c| planes[c]).collect();
+    let (orth, _) = ortho::solve_orthogonality(
+        &v,
+        &crosses,
+        params.estimate_focal,
+        params.outlier_mad_k,
+        NOISE_FLOOR,
+    )
+    .ok()?;
+    let shifted = |c: u32| {
+        planes
+            .get(c as usize)
+            .copied()
+            .flatten()
+            .map(|p| p + orth.w)
+    };
+    let inv_depths: Vec<f64> = scale_crossings
+        .iter()
+        .filter_map(|&k| {
+            let c = problem.crossings.get(k)?;
+            let (a, b) = (shifted(c.a)?, shifted(c.b)?);
+            Some(0.5 * (a + b).dot(&Vector3::new(c.u[0], c.u[1], 1.0)))
+        })
+        .collect();
+    let m = median(inv_depths).filter(|m| m.is_finite() && *m > 0.0)?;
+    for p in planes.iter_mut().flatten() {
+        *p = (*p + orth.w) / m;
+    }
+    tracing::debug!(w = ?orth.w, rms_rad = orth.rms_rad, crosses = crosses.len(), "shift refitted on all crosses");
+    Some(orth)
+}
+
 /// Solves the plane of every curve it can (see the module docs for the stages).
 pub fn solve(problem: &Problem, params: &SolveParams) -> Result<Solution, SolveError> {
     solve_warm(problem, params, None)
@@ -730,6 +793,14 @@ pub fn solve_warm(
     rejected_curves.sort_unstable();
     rejected_curves.dedup();
 
+    let orth = refit_shift(
+        problem,
+        &mut planes,
+        &subset.crossings,
+        crosses.len(),
+        params,
+    )
+    .unwrap_or(orth);
     // To the corrected coordinates (x/λ, y/λ, 1).
     let lambda = orth.focal_scale;
     for v in planes.iter_mut().flatten() {

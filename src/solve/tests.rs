@@ -389,3 +389,41 @@ fn a_warm_start_from_an_earlier_solution_finds_the_same_planes() {
     );
     assert!(warm_median < 0.01, "{warm_median}");
 }
+
+/// Stage 7 on exact planes all shifted off their orthogonality by one `w`, with some
+/// planes unsolved: the shift is undone and the planes come back up to scale.
+#[test]
+fn refitting_the_shift_on_all_crosses_undoes_a_common_shift() {
+    let (s, cr) = scan(30, 5);
+    let problem = problem(&s, &cr);
+    let w = Vector3::new(0.03, -0.02, 0.05);
+    let mut planes: Vec<Option<Vector3<f64>>> = s
+        .planes
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (i % 7 != 3).then_some(p + w))
+        .collect();
+    let all: Vec<usize> = (0..cr.len()).collect();
+    let orth =
+        refit_shift(&problem, &mut planes, &all, 5, &SolveParams::default()).expect("refits");
+    assert!((orth.w + w).norm() < 1e-9, "w {:?}", orth.w);
+    assert!(orth.rms_rad < 1e-9);
+    let sol = Solution {
+        planes,
+        ..Solution::empty()
+    };
+    let (_, worst, solved) = plane_error(&sol, &s.planes);
+    assert!(worst < 1e-9, "worst {worst}");
+    assert_eq!(solved, (0..s.planes.len()).filter(|i| i % 7 != 3).count());
+    // With no more crosses than the global subset had, nothing is refitted.
+    let mut untouched = sol.planes.clone();
+    assert!(refit_shift(
+        &problem,
+        &mut untouched,
+        &all,
+        1000,
+        &SolveParams::default()
+    )
+    .is_none());
+    assert_eq!(untouched, sol.planes);
+}
