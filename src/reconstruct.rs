@@ -228,8 +228,8 @@ pub struct StageTimes {
 
 /// What a reconstruction found; serialised as the `--report` JSON (with `version`).
 /// Within a version keys are only ever added (`crossings_in_solve`,
-/// `crossings_off_surface` and the `triangulation.inconsistent_*` counts came later in
-/// version 1); readers should ignore keys they do not know.
+/// `crossings_off_surface`, `planes_too_uncertain` and the `triangulation.inconsistent_*`
+/// counts came later in version 1); readers should ignore keys they do not know.
 #[derive(Clone, Debug, Serialize)]
 pub struct ReconstructReport {
     pub version: u32,
@@ -252,6 +252,10 @@ pub struct ReconstructReport {
     /// Planes whose turn about their 3D line came from the neighbouring frames
     /// (`solve.motion_prior_max_gap`).
     pub planes_fixed_by_motion: usize,
+    /// Extended planes dropped because their crossings fixed them too loosely
+    /// (`solve.uncertain_plane_ratio`); the motion prior may have given them a plane
+    /// again.
+    pub planes_too_uncertain: usize,
     pub residual_rms: f64,
     pub orthogonality_rms_deg: f64,
     pub focal_scale: f64,
@@ -782,6 +786,7 @@ pub fn reconstruct_curves(
         rejected_crossings: solution.rejected_crossings.len(),
         rejected_planes: solution.rejected_curves.len(),
         planes_fixed_by_motion: motion_fill.filled,
+        planes_too_uncertain: solution.uncertain_planes,
         residual_rms: solution.residual_rms,
         orthogonality_rms_deg: solution.orthogonality_rms_deg,
         focal_scale: lambda,

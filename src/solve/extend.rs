@@ -35,12 +35,32 @@ pub struct FitContext {
     /// random about their 3D line, which agrees with every crossing on that line and
     /// would win the vote with a wild norm. Zero takes every sample.
     pub min_sample_spread: f64,
+    /// A refined plane whose fit leaves the relative depth at one of its crossings
+    /// more uncertain than this many times the median of the refined planes (one
+    /// standard deviation, from the fit's covariance) is dropped
+    /// ([`super::SolveParams::uncertain_plane_ratio`]); infinity keeps all.
+    pub max_depth_sigma: f64,
+}
+
+impl PlaneFit {
+    /// One standard deviation of the relative depth `δZ / Z` on the plane at the image
+    /// point `u` (normalised), from [`Self::covariance`]: `√(uᵀ Σ u) / |v · u|`.
+    pub fn depth_sigma(&self, u: [f64; 2]) -> f64 {
+        let u = Vector3::new(u[0], u[1], 1.0);
+        match self.covariance {
+            Some(cov) => u.dot(&(cov * u)).max(0.0).sqrt() / self.plane.dot(&u).abs(),
+            None => f64::INFINITY,
+        }
+    }
 }
 
 /// A fitted plane and the crossings judged outliers.
 #[derive(Clone, Debug)]
 pub struct PlaneFit {
     pub plane: Vector3<f64>,
+    /// Covariance of `plane` from the last fit's normal matrix (rows in units of
+    /// their noise), as if the other curves' planes were exact.
+    pub covariance: Option<Matrix3<f64>>,
     pub inliers: usize,
     pub outliers: Vec<usize>,
 }
@@ -55,6 +75,7 @@ pub fn fit_plane(
     initial: Option<Vector3<f64>>,
 ) -> Option<PlaneFit> {
     let mut plane = initial.or_else(|| consensus_start(crossings, known, partner, ctx));
+    let mut information = Matrix3::zeros();
     let mut inlier: Vec<bool> = match plane {
         Some(v) => known
             .iter()
@@ -118,6 +139,7 @@ pub fn fit_plane(
         }
         let v = a.cholesky()?.solve(&b);
         plane = Some(v);
+        information = a;
         // Outliers judged with the current plane; stop when the set is stable.
         let mut changed = false;
         for ((k, vj), ok) in known.iter().zip(inlier.iter_mut()) {
@@ -147,6 +169,7 @@ pub fn fit_plane(
     }
     Some(PlaneFit {
         plane,
+        covariance: information.try_inverse(),
         inliers,
         outliers: known
             .iter()
@@ -334,6 +357,7 @@ mod tests {
             min_crossings: 3,
             min_bend: 1e-3,
             min_sample_spread: 4e-9,
+            max_depth_sigma: f64::INFINITY,
         };
         let fit = fit_plane(&cr, &known, Some(scan.planes[1]), &ctx, None).expect("fit");
         let truth = scan.planes[0];
@@ -395,6 +419,7 @@ mod tests {
             min_crossings: 3,
             min_bend: 1e-3,
             min_sample_spread: 4e-5,
+            max_depth_sigma: f64::INFINITY,
         };
         let fit = fit_plane(&crossings, &known, Some(partner), &ctx, None).expect("fit");
         assert!(
@@ -404,5 +429,72 @@ mod tests {
         );
         // Without the partner the plane is free: no fit.
         assert!(fit_plane(&crossings, &known, None, &ctx, None).is_none());
+    }
+
+    /// The fit's depth uncertainty scales with the crossings' noise, and grows from the
+    /// middle of the crossings outwards.
+    #[test]
+    fn depth_uncertainty_follows_the_noise_and_the_spread_of_the_crossings() {
+        let scan = random_scan(&ScanSpec {
+            num_crosses: 12,
+            seed: 21,
+            ..ScanSpec::default()
+        });
+        let cr = analytic_crossings(&scan.scene, &scan.planes, 0.05);
+        let known: Vec<(usize, Vector3<f64>)> = cr
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| c.a == 0 && c.b != 1)
+            .map(|(k, c)| (k, scan.planes[c.b as usize]))
+            .collect();
+        assert!(known.len() >= 6, "{} crossings", known.len());
+        let ctx = |sigma: f64| FitContext {
+            focal_scale: 1.0,
+            sigma_img: sigma,
+            sigma_ortho: 1.0,
+            outlier_k: 1e9,
+            min_crossings: 3,
+            min_bend: 0.0,
+            min_sample_spread: 0.0,
+            max_depth_sigma: f64::INFINITY,
+        };
+        let worst = |fit: &PlaneFit| {
+            known
+                .iter()
+                .map(|(k, _)| fit.depth_sigma(cr[*k].u))
+                .fold(0.0f64, f64::max)
+        };
+        let all = fit_plane(&cr, &known, None, &ctx(1e-4), None).expect("fit");
+        let all_noisier = fit_plane(&cr, &known, None, &ctx(2e-4), None).expect("fit");
+        assert!(
+            (worst(&all_noisier) / worst(&all) - 2.0).abs() < 1e-6,
+            "{} vs {}",
+            worst(&all_noisier),
+            worst(&all)
+        );
+        // Least at the middle of the crossings, growing beyond them.
+        let n = known.len() as f64;
+        let mid = known.iter().fold([0.0, 0.0], |m, (k, _)| {
+            [m[0] + cr[*k].u[0] / n, m[1] + cr[*k].u[1] / n]
+        });
+        let far = known
+            .iter()
+            .map(|(k, _)| cr[*k].u)
+            .max_by(|a, b| {
+                let d = |u: [f64; 2]| (u[0] - mid[0]).hypot(u[1] - mid[1]);
+                d(*a).total_cmp(&d(*b))
+            })
+            .expect("crossings");
+        let beyond = [
+            mid[0] + 3.0 * (far[0] - mid[0]),
+            mid[1] + 3.0 * (far[1] - mid[1]),
+        ];
+        assert!(all.depth_sigma(mid) < worst(&all));
+        assert!(
+            all.depth_sigma(beyond) > 2.0 * worst(&all),
+            "{} vs {}",
+            all.depth_sigma(beyond),
+            worst(&all)
+        );
     }
 }

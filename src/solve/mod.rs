@@ -62,6 +62,10 @@ const EXTEND_BEND_SIGMA: f64 = 20.0;
 /// Least spread of a minimal sample in the extension's consensus start, in units of
 /// `σ_img` (see [`extend::FitContext::min_sample_spread`]).
 const MIN_SAMPLE_SPREAD_SIGMA: f64 = 4.0;
+/// Extended planes whose relative depth is known to better than this are kept however
+/// their peers fare (see [`SolveParams::uncertain_plane_ratio`]): on exact or nearly
+/// exact crossings, dropping the least determined would only lose planes.
+const KEEP_DEPTH_SIGMA: f64 = 5e-4;
 /// Sampson residual scale from the median absolute residual of a Gaussian.
 const MAD_TO_SIGMA: f64 = 1.4826;
 /// Cauchy weight scale in robust standard deviations (95 % efficiency on Gaussian noise).
@@ -132,6 +136,14 @@ pub struct SolveParams {
     /// least this strong (grey levels): not on a faint stretch that hangs on a strong
     /// curve (into its sheet's glow, say).
     pub min_crossing_strength: f32,
+    /// An extended plane whose fit leaves the relative depth at one of its crossings
+    /// more uncertain than this many times the median of the extended planes (one
+    /// standard deviation of `δZ / Z` from the fit's covariance, the other curves'
+    /// planes taken as exact) is dropped after the refinement; the motion prior may
+    /// then give it the turn of its neighbours. Such planes (few crossings, close
+    /// together) were the worst of the water scenes, 1.3-3 % off. Relative, so that
+    /// noisier crossings everywhere drop nothing more. 0 keeps all.
+    pub uncertain_plane_ratio: f64,
 }
 
 impl Default for SolveParams {
@@ -151,6 +163,7 @@ impl Default for SolveParams {
             motion_prior_max_gap: 3,
             min_curve_strength: 40.0,
             min_crossing_strength: 15.0,
+            uncertain_plane_ratio: 4.0,
         }
     }
 }
@@ -198,6 +211,9 @@ pub struct Solution {
     /// the given coordinates: planes there are `(v.x/λ, v.y/λ, v.z)` of [`Self::planes`].
     /// `None` for a solution not made by [`solve`].
     pub fit_context: Option<FitContext>,
+    /// Extended planes dropped because their crossings fixed them too loosely
+    /// ([`SolveParams::uncertain_plane_ratio`]).
+    pub uncertain_planes: usize,
 }
 
 impl Solution {
@@ -216,6 +232,7 @@ impl Solution {
             orthogonality_rms_deg: 0.0,
             null_space_eigenvalues: [0.0; 2],
             fit_context: None,
+            uncertain_planes: 0,
         }
     }
 }
@@ -505,7 +522,9 @@ pub fn robust_global_warm(
 
 /// Stage 5 and 6: planes (in the given coordinates) for every curve not yet solved,
 /// from crossings with solved curves, then `refine_rounds` Gauss–Seidel rounds over
-/// the curves not in `fixed`. Returns the crossings and curves rejected on the way.
+/// the curves not in `fixed`; then the refined planes that their crossings fix too
+/// loosely (`ctx.max_depth_sigma` times the median) are dropped again. Returns the crossings and curves
+/// rejected on the way, and the number of planes dropped as too uncertain.
 pub fn extend_and_refine(
     problem: &Problem,
     active: &[bool],
@@ -513,7 +532,7 @@ pub fn extend_and_refine(
     fixed: &[bool],
     ctx: &FitContext,
     refine_rounds: usize,
-) -> (Vec<usize>, Vec<u32>) {
+) -> (Vec<usize>, Vec<u32>, usize) {
     let cr = problem.crossings;
     let adj = adjacency(problem.num_curves, cr, active);
     let mut rejected_crossings = Vec::new();
@@ -566,6 +585,8 @@ pub fn extend_and_refine(
             break;
         }
     }
+    let mut uncertain = vec![f64::NAN; problem.num_curves];
+    let mut dropped_uncertain = 0;
     for round in 0..refine_rounds {
         for c in 0..problem.num_curves {
             if fixed[c] || planes[c].is_none() {
@@ -576,8 +597,33 @@ pub fn extend_and_refine(
             if let Some(fit) = fit_plane(cr, &known, partner, ctx, planes[c]) {
                 planes[c] = Some(fit.plane);
                 if round + 1 == refine_rounds {
-                    rejected_crossings.extend(fit.outliers);
+                    rejected_crossings.extend(fit.outliers.iter().copied());
+                    // Judged at the crossings it has, its partner's included.
+                    let sigma = known
+                        .iter()
+                        .map(|(k, _)| fit.depth_sigma(cr[*k].u))
+                        .fold(0.0f64, f64::max);
+                    uncertain[c] = sigma;
                 }
+            }
+        }
+    }
+    // Planes fixed too loosely by their crossings are dropped after the refinement
+    // (not during it, so that the order of the curves does not matter); the motion
+    // prior may give them a plane from the neighbouring frames.
+    let typical = median(
+        uncertain
+            .iter()
+            .copied()
+            .filter(|s| s.is_finite())
+            .collect(),
+    );
+    if let Some(typical) = typical {
+        let limit = (ctx.max_depth_sigma * typical).max(KEEP_DEPTH_SIGMA);
+        for c in 0..problem.num_curves {
+            if uncertain[c] > limit && planes[c].is_some() {
+                planes[c] = None;
+                dropped_uncertain += 1;
             }
         }
     }
@@ -598,7 +644,7 @@ pub fn extend_and_refine(
             }
         }
     }
-    (rejected_crossings, rejected_curves)
+    (rejected_crossings, rejected_curves, dropped_uncertain)
 }
 
 /// Stage 7: the shift `w` (and `λ`) again, from the crosses of every solved plane.
@@ -777,8 +823,13 @@ pub fn solve_warm(
             .min_curve_bend
             .min(EXTEND_BEND_SIGMA * global.sigma_img),
         min_sample_spread: MIN_SAMPLE_SPREAD_SIGMA * global.sigma_img,
+        max_depth_sigma: if params.uncertain_plane_ratio > 0.0 {
+            params.uncertain_plane_ratio
+        } else {
+            f64::INFINITY
+        },
     };
-    let (rc, rv) = extend_and_refine(
+    let (rc, rv, uncertain_planes) = extend_and_refine(
         problem,
         &ext_active,
         &mut planes,
@@ -836,6 +887,7 @@ pub fn solve_warm(
             global.null_space.lambda_second,
         ],
         fit_context: Some(ctx),
+        uncertain_planes,
     })
 }
 

@@ -167,7 +167,7 @@ pub fn fill_and_extend(
             *a = false;
         }
     }
-    let (rc, rv) = super::extend_and_refine(problem, &active, &mut given, &fixed, &ctx, 0);
+    let (rc, rv, _) = super::extend_and_refine(problem, &active, &mut given, &fixed, &ctx, 0);
     solution.rejected_crossings.extend(rc);
     solution.rejected_crossings.sort_unstable();
     solution.rejected_crossings.dedup();

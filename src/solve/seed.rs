@@ -164,6 +164,8 @@ fn solve_and_grow(
         min_bend: params.min_curve_bend,
         // The seed's noise is a rough one: every sample may vote.
         min_sample_spread: 0.0,
+        // Only the global solve's own extension judges uncertainty.
+        max_depth_sigma: f64::INFINITY,
     };
     let adj = adjacency(problem.num_curves, cr, active);
     let mut failed = vec![false; problem.num_curves];

@@ -427,3 +427,82 @@ fn refitting_the_shift_on_all_crosses_undoes_a_common_shift() {
     .is_none());
     assert_eq!(untouched, sol.planes);
 }
+
+/// On noisy crossings, the extended planes dropped as too loosely fixed are among the
+/// ones the solve gets worst: with the drop switched off, their median plane error is
+/// above the kept planes' median (the covariance takes the neighbours as exact, so it
+/// ranks planes only roughly).
+#[test]
+fn loosely_fixed_planes_are_the_worst_ones() {
+    let sphere = SphereScene::default();
+    let (planes, partner) = random_sphere_scan(
+        &ScanSpec {
+            num_crosses: 60,
+            seed: 7,
+            ..ScanSpec::default()
+        },
+        &sphere,
+    );
+    let mut cr = sphere_crossings(&sphere, &planes, 0.1);
+    let sigma = 0.3 / 1000.0;
+    let mut rng = Rng::new(3);
+    for c in &mut cr {
+        c.u[0] += sigma * rng.normal();
+        c.u[1] += sigma * rng.normal();
+    }
+    let problem = Problem {
+        focal_px: 1000.0,
+        num_curves: planes.len(),
+        crossings: &cr,
+        partner: &partner,
+    };
+    // Twice the median, so that this scan, whose planes are all fixed about
+    // equally well, has some to drop.
+    let base = SolveParams {
+        max_global_planes: 40,
+        min_curve_bend_px: 5.0,
+        uncertain_plane_ratio: 2.0,
+        ..SolveParams::default()
+    };
+    let kept_all = solve(
+        &problem,
+        &SolveParams {
+            uncertain_plane_ratio: 0.0,
+            ..base.clone()
+        },
+    )
+    .expect("solvable");
+    assert_eq!(kept_all.uncertain_planes, 0);
+    let sol = solve(&problem, &base).expect("solvable");
+    assert!(sol.uncertain_planes > 0, "nothing was dropped");
+    // Errors of the planes solved without the drop, after the global scale.
+    let (k, _, _) = plane_error(&kept_all, &planes);
+    let error = |c: usize| {
+        let v = kept_all.planes[c].expect("solved");
+        (v - planes[c] * k).norm() / (planes[c] * k).norm()
+    };
+    let both: Vec<usize> = (0..planes.len())
+        .filter(|&c| kept_all.planes[c].is_some())
+        .collect();
+    let dropped: Vec<usize> = both
+        .iter()
+        .copied()
+        .filter(|&c| sol.planes[c].is_none())
+        .collect();
+    assert_eq!(dropped.len(), sol.uncertain_planes);
+    let mut kept: Vec<f64> = both
+        .iter()
+        .copied()
+        .filter(|&c| sol.planes[c].is_some())
+        .map(error)
+        .collect();
+    kept.sort_by(f64::total_cmp);
+    let median_kept = kept[kept.len() / 2];
+    let mut lost: Vec<f64> = dropped.iter().map(|&c| error(c)).collect();
+    lost.sort_by(f64::total_cmp);
+    let median_lost = lost[lost.len() / 2];
+    assert!(
+        median_lost > median_kept,
+        "dropped {lost:?}, kept median {median_kept}"
+    );
+}
