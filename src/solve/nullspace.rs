@@ -89,20 +89,9 @@ pub fn null_space(mut nm: DMatrix<f64>) -> Result<NullSpace, SolveError> {
             needed: 2,
         });
     }
-    let rho = nm.trace() / dim as f64;
-    if !(rho > 0.0 && rho.is_finite()) {
-        return Err(SolveError::Degenerate(
-            "empty or non-finite coplanarity system",
-        ));
-    }
-    let g = rho / n as f64;
-    for i in 0..n {
-        for j in 0..n {
-            for a in 0..3 {
-                nm[(3 * i + a, 3 * j + a)] += g;
-            }
-        }
-    }
+    let rho = gauge_shift(&mut nm).ok_or(SolveError::Degenerate(
+        "empty or non-finite coplanarity system",
+    ))?;
     let mat = faer::Mat::<f64>::from_fn(dim, dim, |i, j| nm[(i, j)]);
     let (v0, l0, l1) = match smallest_by_inverse_iteration(&mat, rho) {
         Some(pairs) => pairs,
@@ -122,6 +111,25 @@ pub fn null_space(mut nm: DMatrix<f64>) -> Result<NullSpace, SolveError> {
         lambda_min: l0,
         lambda_second: l1,
     })
+}
+
+/// `N' = N + ρ G Gᵀ` in place (see the module docs); returns `ρ`, or `None` when `N`
+/// is empty or not finite.
+fn gauge_shift(nm: &mut DMatrix<f64>) -> Option<f64> {
+    let n = nm.nrows() / 3;
+    let rho = nm.trace() / nm.nrows() as f64;
+    if !(rho > 0.0 && rho.is_finite()) {
+        return None;
+    }
+    let g = rho / n as f64;
+    for i in 0..n {
+        for j in 0..n {
+            for a in 0..3 {
+                nm[(3 * i + a, 3 * j + a)] += g;
+            }
+        }
+    }
+    Some(rho)
 }
 
 /// Vectors of the subspace iteration: the two wanted and two more, which speed the
@@ -233,7 +241,23 @@ pub fn sampson(vi: &Vector3<f64>, vj: &Vector3<f64>, u: [f64; 2]) -> Option<(f64
 mod tests {
     use super::*;
     use crate::solve::subset::{select_global, SubsetLimits};
-    use crate::solve::synthetic::{analytic_crossings, random_scan, ScanSpec};
+    use crate::solve::synthetic::{analytic_crossings, random_scan, ScanSpec, SyntheticScan};
+
+    /// The curves of `scan` with crossings off one line, in one connected set.
+    fn connected_subset(scan: &SyntheticScan, cr: &[Crossing]) -> crate::solve::subset::Subset {
+        select_global(
+            scan.planes.len(),
+            cr,
+            &vec![true; cr.len()],
+            &scan.partner,
+            &vec![false; scan.planes.len()],
+            &SubsetLimits {
+                max_planes: 1000,
+                min_crossings: 3,
+                min_bend: 1e-3,
+            },
+        )
+    }
 
     #[test]
     fn normal_matrix_has_a_four_dimensional_null_space_containing_the_truth() {
@@ -244,19 +268,7 @@ mod tests {
         });
         let cr = analytic_crossings(&scan.scene, &scan.planes, 0.05);
         // Curves with crossings off one line, in one connected set.
-        let active = vec![true; cr.len()];
-        let sub = select_global(
-            scan.planes.len(),
-            &cr,
-            &active,
-            &scan.partner,
-            &vec![false; scan.planes.len()],
-            &SubsetLimits {
-                max_planes: 1000,
-                min_crossings: 3,
-                min_bend: 1e-3,
-            },
-        );
+        let sub = connected_subset(&scan, &cr);
         let n = sub.curves.len();
         assert!(n >= 20, "{n} curves");
         let planes: Vec<Vector3<f64>> = sub
@@ -346,30 +358,11 @@ mod tests {
                     *x += noise * ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5);
                 }
             }
-            let active = vec![true; cr.len()];
-            let sub = select_global(
-                scan.planes.len(),
-                &cr,
-                &active,
-                &scan.partner,
-                &vec![false; scan.planes.len()],
-                &SubsetLimits {
-                    max_planes: 1000,
-                    min_crossings: 3,
-                    min_bend: 1e-3,
-                },
-            );
+            let sub = connected_subset(&scan, &cr);
             let n = sub.curves.len();
             let w = vec![1.0; sub.crossings.len()];
             let mut nm = normal_matrix(n, &sub.local, &cr, &sub.crossings, &w);
-            let rho = nm.trace() / (3 * n) as f64;
-            for i in 0..n {
-                for j in 0..n {
-                    for a in 0..3 {
-                        nm[(3 * i + a, 3 * j + a)] += rho / n as f64;
-                    }
-                }
-            }
+            let rho = gauge_shift(&mut nm).expect("a system");
             let mat = faer::Mat::<f64>::from_fn(3 * n, 3 * n, |i, j| nm[(i, j)]);
             let (v_it, l0_it, l1_it) =
                 smallest_by_inverse_iteration(&mat, rho).expect("iteration settles");
