@@ -367,8 +367,7 @@ pub struct ExtractStats {
 pub struct Extractor {
     params: ExtractParams,
     camera: Camera,
-    /// Shared so that a frame's response filler can hold it while the extractor links.
-    lut: std::sync::Arc<ColourLut>,
+    lut: ColourLut,
     detector: Detector,
     linker: Linker,
     active: Vec<Vec<bool>>,
@@ -414,7 +413,7 @@ impl Extractor {
             grown: vec![false; tiles],
             params: params.clone(),
             camera: camera.clone(),
-            lut: std::sync::Arc::new(lut),
+            lut,
             detector,
             linker: Linker::default(),
             stats: ExtractStats::default(),
@@ -473,11 +472,10 @@ impl Extractor {
         self.activate_rgb(src.frame(), background);
         let mut curves = Vec::new();
         self.stats = ExtractStats::default();
-        let lut = std::sync::Arc::clone(&self.lut);
         for laser in 0..self.params.lasers.len() {
             self.detector.prepare(
                 &self.active[laser],
-                &mut response_rgb(&lut, laser as u8, src.frame(), background),
+                &mut response_rgb(&self.lut, laser as u8, src.frame(), background),
             );
             self.detector
                 .detect(&self.active[laser], self.params.low_contrast);
@@ -491,8 +489,10 @@ impl Extractor {
                 }
                 self.stats.follow_tiles += self.grown.iter().filter(|g| **g).count();
                 src.ensure(&self.grown, self.detector.tiles_x, self.detector.tiles_y);
-                let mut fill = response_rgb(&lut, laser as u8, src.frame(), background);
-                self.detector.extend(&self.grown, &mut fill);
+                self.detector.extend(
+                    &self.grown,
+                    &mut response_rgb(&self.lut, laser as u8, src.frame(), background),
+                );
                 self.detector
                     .detect_more(&self.grown, self.params.low_contrast);
                 for (a, g) in self.active[laser].iter_mut().zip(&self.grown) {

@@ -176,11 +176,8 @@ impl Extractor {
         // 2. Grow by the margin; restore last frame's tiles; convert this frame's.
         let mut want = vec![false; tiles_x * tiles_y];
         for (t, _) in yuv.candidate.iter().enumerate().filter(|(_, c)| **c) {
-            let (tx, ty) = (t % tiles_x, t / tiles_x);
-            for yy in ty.saturating_sub(MARGIN_TILES)..(ty + MARGIN_TILES + 1).min(tiles_y) {
-                for xx in tx.saturating_sub(MARGIN_TILES)..(tx + MARGIN_TILES + 1).min(tiles_x) {
-                    want[yy * tiles_x + xx] = true;
-                }
+            for u in tiles_near(t, MARGIN_TILES, tiles_x, tiles_y) {
+                want[u] = true;
             }
         }
         // Restores first, then conversions: a tile's even-aligned span may reach one
@@ -194,13 +191,11 @@ impl Extractor {
         };
         for (t, &wanted) in want.iter().enumerate() {
             if src.converted[t] && !wanted {
-                src.copy_tile(t, None, bg.as_raw());
-                src.converted[t] = false;
+                src.restore_tile(t, bg.as_raw());
             }
         }
         for (t, _) in want.iter().enumerate().filter(|(_, w)| **w) {
-            src.copy_tile(t, Some(yuyv), bg.as_raw());
-            src.converted[t] = true;
+            src.convert_tile(t);
         }
         // 3. The RGB pipeline on the scratch frame, which converts more tiles if a
         //    curve is followed beyond these. Taken out of the extractor for the call.
@@ -225,30 +220,53 @@ struct YuyvTiles<'a> {
 }
 
 impl YuyvTiles<'_> {
-    /// Writes tile `t` of the scratch frame from the YUYV frame (`Some`) or from the
-    /// background.
-    fn copy_tile(&mut self, t: usize, yuyv: Option<&[u8]>, background: &[u8]) {
+    /// Tile `t`'s rows and its even-aligned column span `[x0, x1)` (YUYV pairs share
+    /// their chroma, so the span may reach one pixel into the next tile).
+    fn tile_span(&self, t: usize) -> (std::ops::Range<usize>, usize, usize) {
         let (w, h) = (
             self.scratch.width() as usize,
             self.scratch.height() as usize,
         );
-        let tiles_x = w.div_ceil(self.tile);
-        let (tx, ty) = (t % tiles_x, t / tiles_x);
+        let (tx, ty) = (t % w.div_ceil(self.tile), t / w.div_ceil(self.tile));
         let (x0, x1) = (tx * self.tile, ((tx + 1) * self.tile).min(w));
-        // Even start and end: YUYV pairs share their chroma.
-        let (x0, x1) = (x0 & !1, (x1 + 1).min(w) & !1);
-        let scratch: &mut [u8] = &mut self.scratch;
-        for y in ty * self.tile..((ty + 1) * self.tile).min(h) {
-            let dst = &mut scratch[3 * (y * w + x0)..3 * (y * w + x1)];
-            match yuyv {
-                Some(yuyv) => yuyv_row_to_rgb(
-                    &yuyv[y * self.stride + 2 * x0..y * self.stride + 2 * x1],
-                    dst,
-                ),
-                None => dst.copy_from_slice(&background[3 * (y * w + x0)..3 * (y * w + x1)]),
-            }
-        }
+        let rows = ty * self.tile..((ty + 1) * self.tile).min(h);
+        (rows, x0 & !1, (x1 + 1).min(w) & !1)
     }
+
+    /// Writes tile `t` of the scratch frame from the YUYV frame.
+    fn convert_tile(&mut self, t: usize) {
+        let (rows, x0, x1) = self.tile_span(t);
+        let w = self.scratch.width() as usize;
+        let scratch: &mut [u8] = &mut self.scratch;
+        for y in rows {
+            yuyv_row_to_rgb(
+                &self.yuyv[y * self.stride + 2 * x0..y * self.stride + 2 * x1],
+                &mut scratch[3 * (y * w + x0)..3 * (y * w + x1)],
+            );
+        }
+        self.converted[t] = true;
+    }
+
+    /// Writes tile `t` of the scratch frame back from the background.
+    fn restore_tile(&mut self, t: usize, background: &[u8]) {
+        let (rows, x0, x1) = self.tile_span(t);
+        let w = self.scratch.width() as usize;
+        let scratch: &mut [u8] = &mut self.scratch;
+        for y in rows {
+            let span = 3 * (y * w + x0)..3 * (y * w + x1);
+            scratch[span.clone()].copy_from_slice(&background[span]);
+        }
+        self.converted[t] = false;
+    }
+}
+
+/// The tiles within `r` tiles of tile `t` (itself included) on a `tiles_x` × `tiles_y`
+/// grid.
+fn tiles_near(t: usize, r: usize, tiles_x: usize, tiles_y: usize) -> impl Iterator<Item = usize> {
+    let (tx, ty) = (t % tiles_x, t / tiles_x);
+    (ty.saturating_sub(r)..(ty + r + 1).min(tiles_y)).flat_map(move |y| {
+        (tx.saturating_sub(r)..(tx + r + 1).min(tiles_x)).map(move |x| y * tiles_x + x)
+    })
 }
 
 impl TileFrame for YuyvTiles<'_> {
@@ -257,17 +275,10 @@ impl TileFrame for YuyvTiles<'_> {
     }
 
     fn ensure(&mut self, tiles: &[bool], tiles_x: usize, tiles_y: usize) {
-        let yuyv = self.yuyv;
         for (t, _) in tiles.iter().enumerate().filter(|(_, m)| **m) {
-            let (tx, ty) = (t % tiles_x, t / tiles_x);
-            for yy in ty.saturating_sub(1)..(ty + 2).min(tiles_y) {
-                for xx in tx.saturating_sub(1)..(tx + 2).min(tiles_x) {
-                    let u = yy * tiles_x + xx;
-                    if !self.converted[u] {
-                        // The background is not needed: nothing is restored here.
-                        self.copy_tile(u, Some(yuyv), &[]);
-                        self.converted[u] = true;
-                    }
+            for u in tiles_near(t, 1, tiles_x, tiles_y) {
+                if !self.converted[u] {
+                    self.convert_tile(u);
                 }
             }
         }
