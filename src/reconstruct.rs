@@ -630,6 +630,13 @@ pub fn reconstruct_curves(
     times.intersect_s = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
+    // Each curve's plane, from the planes of (frame, laser).
+    let planes_of_curves = |planes: &[Option<Vector3<f64>>]| -> Vec<Option<Vector3<f64>>> {
+        curve_plane
+            .iter()
+            .map(|&p| planes.get(p as usize).copied().flatten())
+            .collect()
+    };
     let problem = Problem {
         num_curves: planes.len(),
         crossings: &strong,
@@ -645,12 +652,12 @@ pub fn reconstruct_curves(
             // each only a little off, too little for the solver's per-crossing
             // rejection, but its crossings disagree together. Those curves, and the
             // stretches of curves that run off the surface, leave the solve.
-            let planes_now: Vec<Option<Vector3<f64>>> = curve_plane
-                .iter()
-                .map(|&p| sol.planes.get(p as usize).copied().flatten())
-                .collect();
-            let check =
-                cloud::check_crossings(&planes_now, &curve_crossings, &faint, &config.triangulate);
+            let check = cloud::check_crossings(
+                &planes_of_curves(&sol.planes),
+                &curve_crossings,
+                &faint,
+                &config.triangulate,
+            );
             let agreed: Vec<Crossing> = strong
                 .iter()
                 .zip(&strong_curves)
@@ -704,10 +711,7 @@ pub fn reconstruct_curves(
     };
     let mut pixels: Vec<[f32; 2]> = Vec::new();
     let mut stats = TriangulateStats::default();
-    let curve_planes: Vec<Option<Vector3<f64>>> = curve_plane
-        .iter()
-        .map(|&p| solution.planes.get(p as usize).copied().flatten())
-        .collect();
+    let curve_planes = planes_of_curves(&solution.planes);
     // Faint curves must be confirmed by a crossing that agrees.
     let check =
         cloud::check_crossings(&curve_planes, &curve_crossings, &faint, &config.triangulate);

@@ -647,6 +647,42 @@ pub fn extend_and_refine(
     (rejected_crossings, rejected_curves, dropped_uncertain)
 }
 
+/// The crosses among `curves` (pairs of partners both in it), as local indices
+/// `(i, j)`, `i < j`, with `local[c]` the index of curve `c` in `curves`.
+fn crosses_among(
+    curves: &[u32],
+    local: &[Option<usize>],
+    partner: &[Option<u32>],
+) -> Vec<(usize, usize)> {
+    curves
+        .iter()
+        .enumerate()
+        .filter_map(|(i, &c)| {
+            let p = partner.get(c as usize).copied().flatten()?;
+            let j = local.get(p as usize).copied().flatten()?;
+            (i < j).then_some((i, j))
+        })
+        .collect()
+}
+
+/// Median over the crossings `ids` of the mean inverse depth `½ (v_a + v_b) · u` that
+/// the planes `plane(curve)` give them, where both are known.
+fn median_inverse_depth(
+    crossings: &[Crossing],
+    ids: &[usize],
+    plane: impl Fn(u32) -> Option<Vector3<f64>>,
+) -> Option<f64> {
+    median(
+        ids.iter()
+            .filter_map(|&k| {
+                let c = crossings.get(k)?;
+                let (a, b) = (plane(c.a)?, plane(c.b)?);
+                Some(0.5 * (a + b).dot(&Vector3::new(c.u[0], c.u[1], 1.0)))
+            })
+            .collect(),
+    )
+}
+
 /// Stage 7: the shift `w` (and `λ`) again, from the crosses of every solved plane.
 /// Extended planes follow the global ones through their crossings, so all solved
 /// planes are still one family `v + w`; their crosses add orthogonality constraints
@@ -661,22 +697,18 @@ fn refit_shift(
     global_crosses: usize,
     params: &SolveParams,
 ) -> Option<ortho::Orthogonality> {
-    let solved: Vec<usize> = (0..planes.len()).filter(|&c| planes[c].is_some()).collect();
-    let mut local = vec![usize::MAX; planes.len()];
-    for (i, &c) in solved.iter().enumerate() {
-        local[c] = i;
-    }
-    let crosses: Vec<(usize, usize)> = solved
-        .iter()
-        .filter_map(|&c| {
-            let p = problem.partner.get(c).copied().flatten()? as usize;
-            (c < p && planes.get(p).is_some_and(Option::is_some)).then(|| (local[c], local[p]))
-        })
+    let solved: Vec<u32> = (0..planes.len() as u32)
+        .filter(|&c| planes[c as usize].is_some())
         .collect();
+    let mut local = vec![None; planes.len()];
+    for (i, &c) in solved.iter().enumerate() {
+        local[c as usize] = Some(i);
+    }
+    let crosses = crosses_among(&solved, &local, problem.partner);
     if crosses.len() <= global_crosses {
         return None;
     }
-    let v: Vec<Vector3<f64>> = solved.iter().filter_map(|&c| planes[c]).collect();
+    let v: Vec<Vector3<f64>> = solved.iter().filter_map(|&c| planes[c as usize]).collect();
     let (orth, _) = ortho::solve_orthogonality(
         &v,
         &crosses,
@@ -685,22 +717,14 @@ fn refit_shift(
         NOISE_FLOOR,
     )
     .ok()?;
-    let shifted = |c: u32| {
+    let m = median_inverse_depth(problem.crossings, scale_crossings, |c| {
         planes
             .get(c as usize)
             .copied()
             .flatten()
             .map(|p| p + orth.w)
-    };
-    let inv_depths: Vec<f64> = scale_crossings
-        .iter()
-        .filter_map(|&k| {
-            let c = problem.crossings.get(k)?;
-            let (a, b) = (shifted(c.a)?, shifted(c.b)?);
-            Some(0.5 * (a + b).dot(&Vector3::new(c.u[0], c.u[1], 1.0)))
-        })
-        .collect();
-    let m = median(inv_depths).filter(|m| m.is_finite() && *m > 0.0)?;
+    })
+    .filter(|m| m.is_finite() && *m > 0.0)?;
     for p in planes.iter_mut().flatten() {
         *p = (*p + orth.w) / m;
     }
@@ -758,16 +782,7 @@ pub fn solve_warm(
 
     let global = robust_global_warm(problem, &active, params, warm)?;
     let subset = &global.subset;
-    let crosses: Vec<(usize, usize)> = subset
-        .curves
-        .iter()
-        .enumerate()
-        .filter_map(|(i, &c)| {
-            let p = problem.partner[c as usize]?;
-            let j = subset.local.get(p as usize).copied().flatten()?;
-            (i < j).then_some((i, j))
-        })
-        .collect();
+    let crosses = crosses_among(&subset.curves, &subset.local, problem.partner);
     let (orth, _bad_crosses) = ortho::solve_orthogonality(
         &global.null_space.v0,
         &crosses,
@@ -778,16 +793,15 @@ pub fn solve_warm(
 
     // Planes in the given coordinates; sign and scale from the global inlier crossings.
     let mut given: Vec<Vector3<f64>> = global.null_space.v0.iter().map(|v| v + orth.w).collect();
-    let inv_depths: Vec<f64> = subset
-        .crossings
-        .iter()
-        .filter_map(|&k| {
-            let c = &cr[k];
-            let (i, j) = (subset.local[c.a as usize]?, subset.local[c.b as usize]?);
-            Some(0.5 * (given[i] + given[j]).dot(&Vector3::new(c.u[0], c.u[1], 1.0)))
-        })
-        .collect();
-    let m = median(inv_depths).unwrap_or(0.0);
+    let m = median_inverse_depth(cr, &subset.crossings, |c| {
+        subset
+            .local
+            .get(c as usize)
+            .copied()
+            .flatten()
+            .map(|i| given[i])
+    })
+    .unwrap_or(0.0);
     if !(m.abs() > 0.0 && m.is_finite()) {
         return Err(SolveError::Degenerate("planes through the camera centre"));
     }
