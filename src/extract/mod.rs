@@ -602,11 +602,7 @@ impl Extractor {
         for active in &mut self.active {
             self.grown.copy_from_slice(active);
             for (t, _) in self.white.iter().enumerate().filter(|(_, w)| **w) {
-                let (tx, ty) = (t % tx_n, t / tx_n);
-                let near = (ty.saturating_sub(1)..(ty + 2).min(ty_n)).any(|y| {
-                    (tx.saturating_sub(1)..(tx + 2).min(tx_n)).any(|x| active[y * tx_n + x])
-                });
-                self.grown[t] |= near;
+                self.grown[t] |= tiles_near(t, 1, tx_n, ty_n).any(|u| active[u]);
             }
             std::mem::swap(active, &mut self.grown);
         }
@@ -662,6 +658,20 @@ impl Extractor {
             },
         );
     }
+}
+
+/// The tiles within `r` tiles of tile `t` (itself included) on a `tiles_x` × `tiles_y`
+/// grid.
+pub(crate) fn tiles_near(
+    t: usize,
+    r: usize,
+    tiles_x: usize,
+    tiles_y: usize,
+) -> impl Iterator<Item = usize> {
+    let (tx, ty) = (t % tiles_x, t / tiles_x);
+    (ty.saturating_sub(r)..(ty + r + 1).min(tiles_y)).flat_map(move |y| {
+        (tx.saturating_sub(r)..(tx + r + 1).min(tiles_x)).map(move |x| y * tiles_x + x)
+    })
 }
 
 /// The frame an extraction reads: whole (RGB input), or converted tile by tile where

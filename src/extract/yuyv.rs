@@ -12,7 +12,7 @@
 
 use image::RgbImage;
 
-use super::{Background, Curve, ExtractError, Extractor, TileFrame};
+use super::{tiles_near, Background, Curve, ExtractError, Extractor, TileFrame};
 use crate::capture::dump::yuyv_row_to_rgb;
 
 /// Tiles around a candidate tile that are converted too: the detector's kernels and
@@ -258,15 +258,6 @@ impl YuyvTiles<'_> {
         }
         self.converted[t] = false;
     }
-}
-
-/// The tiles within `r` tiles of tile `t` (itself included) on a `tiles_x` × `tiles_y`
-/// grid.
-fn tiles_near(t: usize, r: usize, tiles_x: usize, tiles_y: usize) -> impl Iterator<Item = usize> {
-    let (tx, ty) = (t % tiles_x, t / tiles_x);
-    (ty.saturating_sub(r)..(ty + r + 1).min(tiles_y)).flat_map(move |y| {
-        (tx.saturating_sub(r)..(tx + r + 1).min(tiles_x)).map(move |x| y * tiles_x + x)
-    })
 }
 
 impl TileFrame for YuyvTiles<'_> {
