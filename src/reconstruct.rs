@@ -228,8 +228,8 @@ pub struct StageTimes {
 
 /// What a reconstruction found; serialised as the `--report` JSON (with `version`).
 /// Within a version keys are only ever added (`crossings_in_solve`,
-/// `crossings_off_surface`, `planes_too_uncertain` and the `triangulation.inconsistent_*`
-/// counts came later in version 1); readers should ignore keys they do not know.
+/// `crossings_off_surface`, `planes_too_uncertain`, `planes_from_faint_crossings` and
+/// the `triangulation.inconsistent_*` counts came later in version 1); readers should ignore keys they do not know.
 #[derive(Clone, Debug, Serialize)]
 pub struct ReconstructReport {
     pub version: u32,
@@ -256,6 +256,10 @@ pub struct ReconstructReport {
     /// (`solve.uncertain_plane_ratio`); the motion prior may have given them a plane
     /// again.
     pub planes_too_uncertain: usize,
+    /// Planes with no crossing in the solve (all their curves faint, far along the
+    /// sheet under water), fitted afterwards from their crossings of any strength with
+    /// the solved planes.
+    pub planes_from_faint_crossings: usize,
     pub residual_rms: f64,
     pub orthogonality_rms_deg: f64,
     pub focal_scale: f64,
@@ -615,17 +619,19 @@ pub fn reconstruct_curves(
             .unwrap_or(f32::INFINITY)
     };
     let min_local = config.solve.min_crossing_strength;
-    let (strong, strong_curves): (Vec<Crossing>, Vec<&cloud::CurveCrossing>) = crossings
+    // Indices into `crossings` of the strong ones.
+    let strong_idx: Vec<usize> = curve_crossings
         .iter()
-        .zip(&curve_crossings)
+        .enumerate()
         .filter(|(_, cc)| {
             !faint[cc.a as usize]
                 && !faint[cc.b as usize]
                 && local_strength(cc.a, cc.at[0]) >= min_local
                 && local_strength(cc.b, cc.at[1]) >= min_local
         })
-        .map(|(c, cc)| (*c, cc))
-        .unzip();
+        .map(|(k, _)| k)
+        .collect();
+    let strong: Vec<Crossing> = strong_idx.iter().map(|&k| crossings[k]).collect();
     let mut recheck_dropped = 0;
     times.intersect_s = t.elapsed().as_secs_f64();
 
@@ -644,6 +650,7 @@ pub fn reconstruct_curves(
         focal_px: camera.fx.max(camera.fy),
     };
     let mut motion_fill = solve::motion::MotionFill::default();
+    let mut faint_planes = 0;
     let solution: Solution = match source {
         PlaneSource::SelfCalibrated => {
             let mut sol = solve::solve(&problem, &config.solve)?;
@@ -658,21 +665,27 @@ pub fn reconstruct_curves(
                 &faint,
                 &config.triangulate,
             );
-            let agreed: Vec<Crossing> = strong
+            let agreed_idx: Vec<usize> = strong_idx
                 .iter()
-                .zip(&strong_curves)
-                .filter(|(_, cc)| {
+                .copied()
+                .filter(|&k| {
+                    let cc = &curve_crossings[k];
                     check.keeps(cc.a as usize, cc.at[0]) && check.keeps(cc.b as usize, cc.at[1])
                 })
-                .map(|(c, _)| *c)
                 .collect();
-            if agreed.len() < strong.len() {
-                recheck_dropped = strong.len() - agreed.len();
+            // The crossings of the final solve, as indices into `crossings`.
+            let mut solved_idx = strong_idx.clone();
+            if agreed_idx.len() < strong_idx.len() {
+                recheck_dropped = strong_idx.len() - agreed_idx.len();
                 tracing::debug!(recheck_dropped, "re-solving without off-surface curves");
-                let problem = Problem {
-                    crossings: &agreed,
-                    ..problem
-                };
+                solved_idx = agreed_idx;
+            }
+            let solved: Vec<Crossing> = solved_idx.iter().map(|&k| crossings[k]).collect();
+            let problem = Problem {
+                crossings: &solved,
+                ..problem
+            };
+            if recheck_dropped > 0 {
                 sol = solve::solve(&problem, &config.solve)?;
             }
             let sequence: Vec<(u32, u8)> = planes.iter().map(|p| (p.frame, p.laser)).collect();
@@ -683,6 +696,36 @@ pub fn reconstruct_curves(
                 config.solve.motion_prior_max_gap,
             );
             tracing::debug!(?motion_fill, "motion prior");
+            // Planes of faint curves only (the far end of a sweep under water) get no
+            // crossing in the solve. They are fitted from all their crossings with the
+            // solved planes, faint ones included, under the same checks as any
+            // extended plane; the crossings the solve rejected or dropped as off the
+            // surface stay out.
+            let mut usable = vec![true; crossings.len()];
+            for &k in &strong_idx {
+                usable[k] = false;
+            }
+            for &k in &solved_idx {
+                usable[k] = true;
+            }
+            for &j in &sol.rejected_crossings {
+                if let Some(&k) = solved_idx.get(j) {
+                    usable[k] = false;
+                }
+            }
+            let all = Problem {
+                crossings: &crossings,
+                ..problem
+            };
+            let (extended, filled) = solve::motion::extend_from(
+                &all,
+                &usable,
+                &mut sol,
+                &sequence,
+                config.solve.motion_prior_max_gap,
+            );
+            faint_planes = extended + filled;
+            tracing::debug!(extended, filled, "planes from faint crossings");
             sol
         }
         PlaneSource::Known(known) => Solution {
@@ -791,6 +834,7 @@ pub fn reconstruct_curves(
         rejected_planes: solution.rejected_curves.len(),
         planes_fixed_by_motion: motion_fill.filled,
         planes_too_uncertain: solution.uncertain_planes,
+        planes_from_faint_crossings: faint_planes,
         residual_rms: solution.residual_rms,
         orthogonality_rms_deg: solution.orthogonality_rms_deg,
         focal_scale: lambda,
@@ -885,6 +929,12 @@ mod tests {
         let fading = &mut per_frame[20][0].strength;
         let n = fading.len();
         fading[n / 2..].fill(0.25 * strong);
+        // Frame 30's cross is faint all over (far along the sheets under water): no
+        // crossing of it is in the solve, and its planes come from its faint
+        // crossings with the solved planes afterwards.
+        for c in &mut per_frame[30] {
+            c.strength.fill(0.5 * strong);
+        }
 
         let run = |per_frame: Vec<Vec<Curve>>, config: &Config| {
             reconstruct_curves(
@@ -927,5 +977,12 @@ mod tests {
             .filter(|&i| frames[i] == 10 && lasers[i] == 1)
             .count();
         assert_eq!(faint_kept, whole.points.len());
+        assert_eq!(r.planes_from_faint_crossings, 2, "{r:?}");
+        for laser in 0..2 {
+            let kept = (0..frames.len())
+                .filter(|&i| frames[i] == 30 && lasers[i] == laser)
+                .count();
+            assert!(kept > 0, "faint cross, laser {laser}");
+        }
     }
 }

@@ -42,27 +42,34 @@ const MAX_RELATIVE_DEPTH: f64 = 0.005;
 /// count as undetermined (coincident crossings fix no line).
 const RANK_THRESHOLD: f64 = 1e-4;
 
-/// Fills unsolved planes that have at least three crossings with solved planes, using
-/// `sequence[c] = (frame, laser)` of every curve for the prior. Planes and crossings
-/// are in the solution's (focal-corrected) coordinates.
+/// Which of `problem`'s crossings `solution` did not reject.
+fn not_rejected(problem: &Problem, solution: &Solution) -> Vec<bool> {
+    let mut usable = vec![true; problem.crossings.len()];
+    for &k in &solution.rejected_crossings {
+        if let Some(u) = usable.get_mut(k) {
+            *u = false;
+        }
+    }
+    usable
+}
+
+/// Fills unsolved planes that have at least three `usable` crossings with solved
+/// planes, using `sequence[c] = (frame, laser)` of every curve for the prior. Planes
+/// and crossings are in the solution's (focal-corrected) coordinates.
 pub fn fill_free_turns(
     problem: &Problem,
+    usable: &[bool],
     solution: &mut Solution,
     sequence: &[(u32, u8)],
     max_gap: u32,
 ) -> MotionFill {
     let mut out = MotionFill::default();
     let n = problem.num_curves;
-    if sequence.len() != n || solution.planes.len() != n {
+    if sequence.len() != n || solution.planes.len() != n || usable.len() != problem.crossings.len()
+    {
         return out;
     }
     let lambda = solution.focal_scale;
-    let mut rejected = vec![false; problem.crossings.len()];
-    for &k in &solution.rejected_crossings {
-        if let Some(r) = rejected.get_mut(k) {
-            *r = true;
-        }
-    }
     let mut bad_curve = vec![false; n];
     for &c in &solution.rejected_curves {
         if let Some(b) = bad_curve.get_mut(c as usize) {
@@ -72,7 +79,7 @@ pub fn fill_free_turns(
     let mut adj: Vec<Vec<(usize, usize)>> = vec![Vec::new(); n];
     for (k, c) in problem.crossings.iter().enumerate() {
         let (a, b) = (c.a as usize, c.b as usize);
-        if rejected[k] || a == b || a >= n || b >= n {
+        if !usable[k] || a == b || a >= n || b >= n {
             continue;
         }
         if c.sin_angle < 0.1 {
@@ -143,7 +150,13 @@ pub fn fill_and_extend(
     if max_gap == 0 {
         return MotionFill::default();
     }
-    let mut total = fill_free_turns(problem, solution, sequence, max_gap);
+    let mut total = fill_free_turns(
+        problem,
+        &not_rejected(problem, solution),
+        solution,
+        sequence,
+        max_gap,
+    );
     let Some(ctx) = solution.fit_context else {
         return total;
     };
@@ -179,12 +192,70 @@ pub fn fill_and_extend(
             *p = g.map(|v| Vector3::new(v.x * lambda, v.y * lambda, v.z));
         }
     }
-    let again = fill_free_turns(problem, solution, sequence, max_gap);
+    let again = fill_free_turns(
+        problem,
+        &not_rejected(problem, solution),
+        solution,
+        sequence,
+        max_gap,
+    );
     total.filled += again.filled;
     MotionFill {
         filled: total.filled,
         ..again
     }
+}
+
+/// Fits the unsolved planes that have enough `usable` crossings with solved planes
+/// (see [`super::extend_and_refine`]), the solved ones held fixed, then gives the
+/// planes those leave free to turn the hand's motion ([`fill_free_turns`], when
+/// `max_gap` > 0); returns how many planes each gave. `problem` may hold more
+/// crossings than the one `solution` was solved from (with `usable` saying which
+/// count); the solution's rejections are left as they were.
+pub fn extend_from(
+    problem: &Problem,
+    usable: &[bool],
+    solution: &mut Solution,
+    sequence: &[(u32, u8)],
+    max_gap: u32,
+) -> (usize, usize) {
+    let Some(ctx) = solution.fit_context else {
+        return (0, 0);
+    };
+    let lambda = solution.focal_scale;
+    let mut given: Vec<Option<Vector3<f64>>> = solution
+        .planes
+        .iter()
+        .map(|p| p.map(|v| Vector3::new(v.x / lambda, v.y / lambda, v.z)))
+        .collect();
+    let fixed: Vec<bool> = given.iter().map(|p| p.is_some()).collect();
+    let active: Vec<bool> = problem
+        .crossings
+        .iter()
+        .zip(usable)
+        .map(|(c, &u)| u && c.sin_angle >= 0.1 && c.a != c.b)
+        .collect();
+    let (_, rejected_curves, _) =
+        super::extend_and_refine(problem, &active, &mut given, &fixed, &ctx, 0);
+    let mut rejected = vec![false; given.len()];
+    for &c in &rejected_curves {
+        if let Some(r) = rejected.get_mut(c as usize) {
+            *r = true;
+        }
+    }
+    let mut added = 0;
+    for ((p, g), &r) in solution.planes.iter_mut().zip(&given).zip(&rejected) {
+        if p.is_none() && g.is_some() && !r {
+            *p = g.map(|v| Vector3::new(v.x * lambda, v.y * lambda, v.z));
+            added += 1;
+        }
+    }
+    let filled = if max_gap > 0 {
+        fill_free_turns(problem, usable, solution, sequence, max_gap).filled
+    } else {
+        0
+    };
+    (added, filled)
 }
 
 /// The prior plane of `frame`: linear interpolation between the nearest solved planes
@@ -309,7 +380,14 @@ mod tests {
         };
         let mut sol = Solution::empty();
         sol.planes = vec![Some(plane(0.0)), None, Some(plane(2.0)), Some(other)];
-        let fill = fill_free_turns(&problem, &mut sol, &[(0, 0), (1, 0), (2, 0), (1, 1)], 3);
+        let all = vec![true; crossings.len()];
+        let fill = fill_free_turns(
+            &problem,
+            &all,
+            &mut sol,
+            &[(0, 0), (1, 0), (2, 0), (1, 1)],
+            3,
+        );
         assert_eq!((fill.filled, fill.refused), (1, 0));
         let v = sol.planes[1].expect("filled");
         assert!((v - truth).norm() < 1e-9, "{v:?} vs {truth:?}");
@@ -322,7 +400,13 @@ mod tests {
             Some(plane(2.0) * 0.995),
             Some(other),
         ];
-        fill_free_turns(&problem, &mut sol3, &[(0, 0), (1, 0), (2, 0), (1, 1)], 3);
+        fill_free_turns(
+            &problem,
+            &all,
+            &mut sol3,
+            &[(0, 0), (1, 0), (2, 0), (1, 1)],
+            3,
+        );
         let v = sol3.planes[1].expect("filled");
         for c in &crossings {
             let u = Vector3::new(c.u[0], c.u[1], 1.0);
@@ -358,6 +442,7 @@ mod tests {
         ];
         let fill = fill_free_turns(
             &problem,
+            &vec![true; bad.len()],
             &mut sol2,
             &[(0, 0), (1, 0), (2, 0), (1, 1), (5, 1)],
             3,

@@ -201,10 +201,13 @@ pub fn print_summary(rec: &Reconstruction) {
         r.frames, r.frames_with_laser, r.curves, r.planes, r.crossings, r.crossings_in_solve
     );
     println!(
-        "planes: {} in the global solve, {} solved; rejected {} crossings, {} planes, \
-         {} too loosely fixed; re-solved without {} crossings of curves off the surface",
+        "planes: {} in the global solve, {} solved ({} by the hand's motion, {} from faint \
+         crossings); rejected {} crossings, {} planes, {} too loosely fixed; re-solved \
+         without {} crossings of curves off the surface",
         r.planes_in_global_solve,
         r.planes_solved,
+        r.planes_fixed_by_motion,
+        r.planes_from_faint_crossings,
         r.rejected_crossings,
         r.rejected_planes,
         r.planes_too_uncertain,
