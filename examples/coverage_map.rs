@@ -50,5 +50,31 @@ fn main() -> anyhow::Result<()> {
         "visible {vis}, covered {:.1} %",
         100.0 * cov as f64 / vis as f64
     );
+    // Where the misses lie by the stripe's peak contrast (lit.png): visible pixels
+    // per contrast band, and the share of them covered.
+    let contrast = image::open(Path::new(&args[1]).join("lit.png"))?.to_luma8();
+    println!("peak contrast | visible | covered");
+    for (lo, hi) in [
+        (0, 15),
+        (15, 20),
+        (20, 25),
+        (25, 30),
+        (30, 40),
+        (40, 60),
+        (60, 256),
+    ] {
+        let band: Vec<usize> = (0..w * h)
+            .filter(|&i| {
+                let c = contrast.as_raw()[i] as u32;
+                sim.visible[i] && c >= lo && c < hi
+            })
+            .collect();
+        let covered = band.iter().filter(|&&i| near[i]).count();
+        println!(
+            "{lo:>4}..{hi:<4} | {:>7} | {:.1} %",
+            band.len(),
+            100.0 * covered as f64 / band.len().max(1) as f64
+        );
+    }
     Ok(())
 }
