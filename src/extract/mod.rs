@@ -14,7 +14,7 @@
 //!    `k`'s own channels (the largest of them: red for a red laser, red and green for a
 //!    yellow one; [`LaserColour::channels`]) on pixels that are weak, white
 //!    (desaturated) or of `k`'s colour, and zero on the other laser's colour where that
-//!    is bright enough to be its stripe (`high_contrast`), so the two stripes of the
+//!    is bright enough to be its stripe (`block_contrast`), so the two stripes of the
 //!    cross stay apart; dimmer pixels of the other colour (its sheet's glow under
 //!    water) count as weak and leave no holes beside the stripe, and since that glow is
 //!    in the other laser's channels it neither hides nor fakes `k`'s faint stripe.
@@ -133,6 +133,10 @@ pub struct ExtractParams {
     pub high_contrast: f32,
     /// A curve continues through points of at least this contrast.
     pub low_contrast: f32,
+    /// A pixel of the other laser's colour blocks a laser from this contrast up (the
+    /// other laser's stripe for certain); dimmer ones (its tails, its glow under
+    /// water) count as weak for both.
+    pub block_contrast: f32,
     /// Curves shorter than this (pixels, along the curve) are dropped.
     pub min_curve_length_px: f64,
     /// Douglas–Peucker tolerance in undistorted pixels (normalised × focal length).
@@ -153,8 +157,9 @@ impl Default for ExtractParams {
         Self {
             line_width_px: None,
             sigma_px: None,
-            high_contrast: 25.0,
+            high_contrast: 15.0,
             low_contrast: 10.0,
+            block_contrast: colour.mask_value as f32,
             min_curve_length_px: 15.0,
             dp_tolerance_px: 0.3,
             max_link_angle_deg: 30.0,
@@ -211,6 +216,12 @@ impl ExtractParams {
                     "expected 0 <= low_contrast <= high_contrast, got {} and {}",
                     self.low_contrast, self.high_contrast
                 ),
+            );
+        }
+        if !(self.block_contrast > 0.0 && self.block_contrast <= 255.0) {
+            return bad(
+                "block_contrast",
+                format!("expected in (0, 255], got {}", self.block_contrast),
             );
         }
         if self.min_curve_length_px.is_nan() || self.min_curve_length_px < 0.0 {
@@ -396,8 +407,7 @@ impl Extractor {
             &ColourParams {
                 min_value: params.min_value,
                 min_saturation: params.min_saturation,
-                // The other laser blocks where it is bright enough to start a curve.
-                mask_value: params.high_contrast.round().clamp(1.0, 255.0) as u8,
+                mask_value: params.block_contrast.round().clamp(1.0, 255.0) as u8,
             },
         );
         let detector = Detector::new(
