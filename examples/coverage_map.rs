@@ -3,6 +3,8 @@
 //! visible ones magenta, missed faint ones dark blue, points outside the lit area grey.
 //! The cloud must be at the truth's scale: pass the scale `compare --truth` printed.
 //!
+//! `CROP=x,y,w,h` also writes that part, twice the size, to `coverage_crop.png`.
+//!
 //! cargo run --release --example coverage_map -- cloud.ply SIMDIR SCALE
 
 use image::{Rgb, RgbImage};
@@ -44,6 +46,16 @@ fn main() -> anyhow::Result<()> {
         })
     });
     img.save("coverage_map.png")?;
+    // CROP=x,y,w,h: that part of the map, twice the size, in coverage_crop.png.
+    if let Some(r) = std::env::var("CROP").ok().map(|s| {
+        s.split(',')
+            .filter_map(|v| v.parse::<u32>().ok())
+            .collect::<Vec<_>>()
+    }) {
+        let crop = image::imageops::crop_imm(&img, r[0], r[1], r[2], r[3]).to_image();
+        image::imageops::resize(&crop, 2 * r[2], 2 * r[3], image::imageops::Nearest)
+            .save("coverage_crop.png")?;
+    }
     let vis = sim.visible.iter().filter(|v| **v).count();
     let cov = (0..w * h).filter(|&i| sim.visible[i] && near[i]).count();
     println!(
