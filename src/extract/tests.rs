@@ -592,6 +592,17 @@ fn params_from_toml_reject_unknown_keys() {
             ..
         })
     ));
+    let bad = ExtractParams {
+        block_contrast: 0.0,
+        ..ExtractParams::default()
+    };
+    assert!(matches!(
+        Extractor::new(&bad, &camera),
+        Err(ExtractError::Params {
+            key: "block_contrast",
+            ..
+        })
+    ));
 }
 
 /// The real laser-on / laser-off pair of `fixtures/real/` (960x1280, a red line laser on
