@@ -36,6 +36,10 @@ pub struct TriangulateParams {
     /// A curve is left out when at least this many of its crossings disagree and they
     /// outnumber those that agree.
     pub min_disagreeing_crossings: u32,
+    /// Points left out at each end of every curve: where a stripe ends (an occlusion,
+    /// the edge of a surface, the other laser's stripe) the detector's window mixes
+    /// the stripe with what lies beyond, and its last point is the worst localised.
+    pub curve_end_points: u32,
 }
 
 impl Default for TriangulateParams {
@@ -44,6 +48,7 @@ impl Default for TriangulateParams {
             min_ray_plane_angle_deg: 0.5,
             max_crossing_disagreement: 0.02,
             min_disagreeing_crossings: 2,
+            curve_end_points: 1,
         }
     }
 }
@@ -59,6 +64,8 @@ pub struct TriangulateStats {
     /// Points left out by the crossing check: of those curves, and the stretches of
     /// other curves nearest a disagreement blamed on them.
     pub inconsistent_points: usize,
+    /// Points left out at the curves' ends (`curve_end_points`).
+    pub curve_ends: usize,
 }
 
 impl TriangulateStats {
@@ -68,6 +75,7 @@ impl TriangulateStats {
         self.behind_camera += other.behind_camera;
         self.inconsistent_curves += other.inconsistent_curves;
         self.inconsistent_points += other.inconsistent_points;
+        self.curve_ends += other.curve_ends;
     }
 }
 
@@ -333,7 +341,10 @@ pub fn push_curve(
     } = curve;
     let min_sin = params.min_ray_plane_angle_deg.to_radians().sin();
     let mut stats = TriangulateStats::default();
-    for (i, &[x, y]) in points.iter().enumerate() {
+    let (n, trim) = (points.len(), params.curve_end_points as usize);
+    let inner = if n > 2 * trim { trim..n - trim } else { 0..0 };
+    stats.curve_ends = n - inner.len();
+    for (i, &[x, y]) in points.iter().enumerate().take(inner.end).skip(inner.start) {
         match triangulate(plane, x, y, min_sin) {
             Ok(p) => {
                 cloud.points.push([p.x as f32, p.y as f32, p.z as f32]);
@@ -655,7 +666,10 @@ mod tests {
                 points_px: &[[1.0, 1.0], [2.5, 2.5]],
             },
             Some(&img),
-            &TriangulateParams::default(),
+            &TriangulateParams {
+                curve_end_points: 0,
+                ..TriangulateParams::default()
+            },
         );
         assert_eq!(stats.kept, 2);
         assert_eq!(pixels, vec![[1.0, 1.0], [2.5, 2.5]]);
@@ -663,6 +677,26 @@ mod tests {
         assert_eq!(cloud.colors.as_deref(), Some(&[[10, 20, 30]; 2][..]));
         assert_eq!(cloud.frames.as_deref(), Some(&[7, 7][..]));
         assert_eq!(cloud.lasers.as_deref(), Some(&[1, 1][..]));
+
+        // The default leaves one point out at each end, with its pixel; a curve of
+        // two points is all ends.
+        let points: Vec<[f64; 2]> = (0..5).map(|i| [0.01 * i as f64, 0.0]).collect();
+        let px: Vec<[f32; 2]> = (0..5).map(|i| [i as f32, 0.0]).collect();
+        let mut cloud = empty_cloud();
+        let mut pixels = Vec::new();
+        let params = TriangulateParams::default();
+        let curve = |n: usize| CurvePoints {
+            frame: 0,
+            laser: 0,
+            points: &points[..n],
+            points_px: &px[..n],
+        };
+        let stats = push_curve(&mut cloud, Some(&mut pixels), &v, curve(5), None, &params);
+        assert_eq!((stats.kept, stats.curve_ends), (3, 2));
+        assert_eq!(pixels, vec![[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]]);
+        assert_eq!(cloud.points[0], [0.02, 0.0, 2.0]);
+        let stats = push_curve(&mut cloud, None, &v, curve(2), None, &params);
+        assert_eq!((stats.kept, stats.curve_ends), (0, 2));
     }
 
     #[test]

@@ -234,8 +234,9 @@ pub fn print_summary(rec: &Reconstruction) {
     );
     let t = &r.triangulation;
     println!(
-        "left out: {} curves and {} points that their crossings disagree with, {} grazing, {} behind the camera",
-        t.inconsistent_curves, t.inconsistent_points, t.grazing, t.behind_camera
+        "left out: {} curves and {} points that their crossings disagree with, {} grazing, \
+         {} behind the camera, {} at curve ends",
+        t.inconsistent_curves, t.inconsistent_points, t.grazing, t.behind_camera, t.curve_ends
     );
     let s = &r.seconds;
     println!(
