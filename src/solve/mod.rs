@@ -76,10 +76,17 @@ const CAUCHY_SCALE: f64 = 2.385;
 pub enum SolveError {
     #[error("invalid problem: {0}")]
     InvalidProblem(String),
-    #[error("too few planes in the global subset: {found}, need at least {needed}")]
+    #[error(
+        "too few planes in the global subset: {found}, need at least {needed} (the curves of \
+         that many frames must cross each other's, each in several places; were the lasers \
+         seen, and did the projector move?)"
+    )]
     TooFewPlanes { found: usize, needed: usize },
     #[error(
-        "too few crosses with both planes in the global subset: {found}, need at least {needed}"
+        "too few crosses with both planes in the global subset: {found}, need at least \
+         {needed} (the orthogonality of a cross's two planes fixes the solution, so both \
+         lines of a cross must be seen crossing other frames' curves: a laser too faint, \
+         such as red far under water, or lost in its sheet's glow, leaves too few)"
     )]
     TooFewCrosses { found: usize, needed: usize },
     #[error("degenerate system: {0}")]
