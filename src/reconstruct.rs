@@ -677,18 +677,42 @@ pub fn reconstruct_curves(
             // The crossings of the final solve, as indices into `crossings`.
             let mut solved_idx = strong_idx.clone();
             if agreed_idx.len() < strong_idx.len() {
-                recheck_dropped = strong_idx.len() - agreed_idx.len();
-                tracing::debug!(recheck_dropped, "re-solving without off-surface curves");
-                solved_idx = agreed_idx;
+                let dropped = strong_idx.len() - agreed_idx.len();
+                tracing::debug!(dropped, "re-solving without off-surface curves");
+                let agreed: Vec<Crossing> = agreed_idx.iter().map(|&k| crossings[k]).collect();
+                let second = solve::solve(
+                    &Problem {
+                        crossings: &agreed,
+                        ..problem
+                    },
+                    &config.solve,
+                );
+                // The second solve starts afresh and may fall into another solution of
+                // the orthogonality fit; it is kept only if it fits at least about as
+                // well as the first.
+                match second {
+                    Ok(second) if !fits_worse(&second, &sol) => {
+                        sol = second;
+                        solved_idx = agreed_idx;
+                        recheck_dropped = dropped;
+                    }
+                    Ok(second) => tracing::warn!(
+                        first_orthogonality_rms_deg = sol.orthogonality_rms_deg,
+                        second_orthogonality_rms_deg = second.orthogonality_rms_deg,
+                        "the re-solve without the off-surface curves fits worse; \
+                         keeping the first solution"
+                    ),
+                    Err(e) => tracing::warn!(
+                        "the re-solve without the off-surface curves failed ({e}); \
+                         keeping the first solution"
+                    ),
+                }
             }
             let solved: Vec<Crossing> = solved_idx.iter().map(|&k| crossings[k]).collect();
             let problem = Problem {
                 crossings: &solved,
                 ..problem
             };
-            if recheck_dropped > 0 {
-                sol = solve::solve(&problem, &config.solve)?;
-            }
             let sequence: Vec<(u32, u8)> = planes.iter().map(|p| (p.frame, p.laser)).collect();
             motion_fill = solve::motion::fill_and_extend(
                 &problem,
@@ -855,6 +879,14 @@ pub fn reconstruct_curves(
     })
 }
 
+/// Whether solution `a` fits clearly worse than `b`: its crosses further from
+/// orthogonal (by more than twice and 0.05°), or its crossings' residuals more than
+/// twice as large.
+fn fits_worse(a: &Solution, b: &Solution) -> bool {
+    a.orthogonality_rms_deg > 2.0 * b.orthogonality_rms_deg + 0.05
+        || a.residual_rms > 2.0 * b.residual_rms
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -873,6 +905,24 @@ mod tests {
             polyline: points.clone(),
             points,
         }
+    }
+
+    /// The consensus re-solve is kept unless it fits clearly worse than the first: a
+    /// turbid recording once re-solved to crosses 10.5° off orthogonal (0.06° at
+    /// first) and a cloud 7 % off.
+    #[test]
+    fn a_re_solve_that_fits_worse_is_not_kept() {
+        let fit = |ortho_deg: f64, residual: f64| Solution {
+            orthogonality_rms_deg: ortho_deg,
+            residual_rms: residual,
+            ..Solution::empty()
+        };
+        let first = fit(0.06, 4e-5);
+        assert!(!fits_worse(&fit(0.04, 3e-5), &first));
+        assert!(!fits_worse(&fit(0.1, 5e-5), &first));
+        assert!(fits_worse(&fit(10.5, 2.6e-3), &first));
+        assert!(fits_worse(&fit(0.2, 4e-5), &first));
+        assert!(fits_worse(&fit(0.06, 9e-5), &first));
     }
 
     #[test]
