@@ -163,33 +163,17 @@ pub fn fill_and_extend(
     if total.filled == 0 {
         return total;
     }
-    let lambda = solution.focal_scale;
-    let mut given: Vec<Option<Vector3<f64>>> = solution
-        .planes
-        .iter()
-        .map(|p| p.map(|v| Vector3::new(v.x / lambda, v.y / lambda, v.z)))
-        .collect();
-    let fixed: Vec<bool> = given.iter().map(|p| p.is_some()).collect();
-    let mut active: Vec<bool> = problem
-        .crossings
-        .iter()
-        .map(|c| c.sin_angle >= 0.1 && c.a != c.b)
-        .collect();
-    for &k in &solution.rejected_crossings {
-        if let Some(a) = active.get_mut(k) {
-            *a = false;
-        }
-    }
-    let (rc, rv, _) = super::extend_and_refine(problem, &active, &mut given, &fixed, &ctx, 0);
+    let (given, rc, rv) =
+        extend_around_solved(problem, &not_rejected(problem, solution), solution, &ctx);
     solution.rejected_crossings.extend(rc);
     solution.rejected_crossings.sort_unstable();
     solution.rejected_crossings.dedup();
     solution.rejected_curves.extend(rv);
     solution.rejected_curves.sort_unstable();
     solution.rejected_curves.dedup();
-    for (p, g) in solution.planes.iter_mut().zip(&given) {
+    for (p, g) in solution.planes.iter_mut().zip(given) {
         if p.is_none() {
-            *p = g.map(|v| Vector3::new(v.x * lambda, v.y * lambda, v.z));
+            *p = g;
         }
     }
     let again = fill_free_turns(
@@ -222,6 +206,37 @@ pub fn extend_from(
     let Some(ctx) = solution.fit_context else {
         return (0, 0);
     };
+    let (given, _, rejected_curves) = extend_around_solved(problem, usable, solution, &ctx);
+    let mut rejected = vec![false; given.len()];
+    for &c in &rejected_curves {
+        if let Some(r) = rejected.get_mut(c as usize) {
+            *r = true;
+        }
+    }
+    let mut added = 0;
+    for ((p, g), &r) in solution.planes.iter_mut().zip(&given).zip(&rejected) {
+        if p.is_none() && g.is_some() && !r {
+            *p = *g;
+            added += 1;
+        }
+    }
+    let filled = if max_gap > 0 {
+        fill_free_turns(problem, usable, solution, sequence, max_gap).filled
+    } else {
+        0
+    };
+    (added, filled)
+}
+
+/// The ordinary extension ([`super::extend_and_refine`]) over the `usable` crossings
+/// with the solution's planes held fixed: every plane afterwards, in the solution's
+/// coordinates, and the crossings and curves the extension rejected.
+fn extend_around_solved(
+    problem: &Problem,
+    usable: &[bool],
+    solution: &Solution,
+    ctx: &super::FitContext,
+) -> (Vec<Option<Vector3<f64>>>, Vec<usize>, Vec<u32>) {
     let lambda = solution.focal_scale;
     let mut given: Vec<Option<Vector3<f64>>> = solution
         .planes
@@ -235,27 +250,12 @@ pub fn extend_from(
         .zip(usable)
         .map(|(c, &u)| u && c.sin_angle >= 0.1 && c.a != c.b)
         .collect();
-    let (_, rejected_curves, _) =
-        super::extend_and_refine(problem, &active, &mut given, &fixed, &ctx, 0);
-    let mut rejected = vec![false; given.len()];
-    for &c in &rejected_curves {
-        if let Some(r) = rejected.get_mut(c as usize) {
-            *r = true;
-        }
-    }
-    let mut added = 0;
-    for ((p, g), &r) in solution.planes.iter_mut().zip(&given).zip(&rejected) {
-        if p.is_none() && g.is_some() && !r {
-            *p = g.map(|v| Vector3::new(v.x * lambda, v.y * lambda, v.z));
-            added += 1;
-        }
-    }
-    let filled = if max_gap > 0 {
-        fill_free_turns(problem, usable, solution, sequence, max_gap).filled
-    } else {
-        0
-    };
-    (added, filled)
+    let (rc, rv, _) = super::extend_and_refine(problem, &active, &mut given, &fixed, ctx, 0);
+    let planes = given
+        .into_iter()
+        .map(|g| g.map(|v| Vector3::new(v.x * lambda, v.y * lambda, v.z)))
+        .collect();
+    (planes, rc, rv)
 }
 
 /// The prior plane of `frame`: linear interpolation between the nearest solved planes
