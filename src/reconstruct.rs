@@ -674,7 +674,9 @@ pub fn reconstruct_curves(
                     check.keeps(cc.a as usize, cc.at[0]) && check.keeps(cc.b as usize, cc.at[1])
                 })
                 .collect();
-            // The crossings of the final solve, as indices into `crossings`.
+            // The crossings of the final solve, and their indices into `crossings`;
+            // `None`: the strong ones.
+            let mut resolved: Option<Vec<Crossing>> = None;
             let mut solved_idx = strong_idx.clone();
             if agreed_idx.len() < strong_idx.len() {
                 let dropped = strong_idx.len() - agreed_idx.len();
@@ -694,6 +696,7 @@ pub fn reconstruct_curves(
                     Ok(second) if !fits_worse(&second, &sol) => {
                         sol = second;
                         solved_idx = agreed_idx;
+                        resolved = Some(agreed);
                         recheck_dropped = dropped;
                     }
                     Ok(second) => tracing::warn!(
@@ -708,9 +711,8 @@ pub fn reconstruct_curves(
                     ),
                 }
             }
-            let solved: Vec<Crossing> = solved_idx.iter().map(|&k| crossings[k]).collect();
             let problem = Problem {
-                crossings: &solved,
+                crossings: resolved.as_deref().unwrap_or(&strong),
                 ..problem
             };
             let sequence: Vec<(u32, u8)> = planes.iter().map(|p| (p.frame, p.laser)).collect();

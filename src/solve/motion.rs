@@ -206,17 +206,12 @@ pub fn extend_from(
     let Some(ctx) = solution.fit_context else {
         return (0, 0);
     };
-    let (given, _, rejected_curves) = extend_around_solved(problem, usable, solution, &ctx);
-    let mut rejected = vec![false; given.len()];
-    for &c in &rejected_curves {
-        if let Some(r) = rejected.get_mut(c as usize) {
-            *r = true;
-        }
-    }
+    // A curve the extension rejects is never given a plane.
+    let (given, _, _) = extend_around_solved(problem, usable, solution, &ctx);
     let mut added = 0;
-    for ((p, g), &r) in solution.planes.iter_mut().zip(&given).zip(&rejected) {
-        if p.is_none() && g.is_some() && !r {
-            *p = *g;
+    for (p, g) in solution.planes.iter_mut().zip(given) {
+        if p.is_none() && g.is_some() {
+            *p = g;
             added += 1;
         }
     }
