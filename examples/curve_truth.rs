@@ -6,6 +6,12 @@
 //! point of strength ≥ `solve.min_curve_strength`) and faint ones, how many points are
 //! off, and the worst strong curves.
 //!
+//! It also prints how much of the visible lit area extraction alone reaches, by the
+//! stripe's peak contrast: pixels within 2 px of an extracted point, of one on the
+//! surface by its true plane, and (`CLOUD=cloud.ply`, reconstruct's output) of one
+//! whose frame and laser have points in that cloud, so that a cloud's coverage loss
+//! splits into extraction, off-surface curves, unsolved planes and the rest.
+//!
 //! cargo run --release --example curve_truth -- target/bench-accuracy/sim-turbid-300 [config.toml]
 
 use crossline::compare::GroundTruth;
@@ -77,6 +83,81 @@ fn main() -> anyhow::Result<()> {
             "{name}: {} curves, {points} points, {off} off the surface ({:.2} %), {mostly_off} curves mostly off",
             sel.len(),
             100.0 * off as f64 / points.max(1) as f64
+        );
+    }
+    // Where extraction alone reaches: visible lit pixels within 2 px of an extracted
+    // point (on the surface by its true plane, and all), per peak contrast band.
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    // CLOUD=path: a third column, extracted points of planes the cloud has points of.
+    let solved: Option<std::collections::HashSet<(u32, u8)>> = match std::env::var("CLOUD") {
+        Ok(p) => {
+            let cloud = crossline::ply::read_ply(Path::new(&p))?;
+            let (f, l) = (
+                cloud.frames.unwrap_or_default(),
+                cloud.lasers.unwrap_or_default(),
+            );
+            Some(f.into_iter().zip(l).collect())
+        }
+        Err(_) => None,
+    };
+    let mut near = [vec![false; w * h], vec![false; w * h], vec![false; w * h]];
+    for (f, curves) in per_frame.iter().enumerate() {
+        let Some(truth) = sim.truth.frames.get(f) else {
+            continue;
+        };
+        for c in curves {
+            let v = Vector3::from(truth.planes[c.laser as usize]);
+            let has_plane = solved
+                .as_ref()
+                .is_none_or(|s| s.contains(&(f as u32, c.laser)));
+            for (p, px) in c.points.iter().zip(&c.points_px) {
+                let u = Vector3::new(p[0], p[1], 1.0);
+                let z = 1.0 / v.dot(&u);
+                let on = sim
+                    .true_depth(&u)
+                    .is_some_and(|zt| z > 0.0 && ((z - zt) / zt).abs() <= 0.02);
+                let (cu, cv) = (px[0].round() as i64, px[1].round() as i64);
+                for y in (cv - 2).max(0)..=(cv + 2).min(h as i64 - 1) {
+                    for x in (cu - 2).max(0)..=(cu + 2).min(w as i64 - 1) {
+                        let (dx, dy) = (x as f32 - px[0], y as f32 - px[1]);
+                        if dx * dx + dy * dy <= 4.0 {
+                            let i = y as usize * w + x as usize;
+                            near[0][i] = true;
+                            near[1][i] |= on;
+                            near[2][i] |= on && has_plane;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let contrast = image::open(dir.join("lit.png"))?.to_luma8();
+    println!("peak contrast | visible | extracted | on the surface | and a plane in CLOUD");
+    for (lo, hi) in [
+        (0, 15),
+        (15, 20),
+        (20, 25),
+        (25, 30),
+        (30, 40),
+        (40, 60),
+        (60, 256),
+        (0, 256),
+    ] {
+        let band: Vec<usize> = (0..w * h)
+            .filter(|&i| {
+                let c = contrast.as_raw()[i] as u32;
+                sim.visible[i] && c >= lo && c < hi
+            })
+            .collect();
+        let share = |m: &[bool]| {
+            100.0 * band.iter().filter(|&&i| m[i]).count() as f64 / band.len().max(1) as f64
+        };
+        println!(
+            "{lo:>4}..{hi:<4} | {:>7} | {:.1} % | {:.1} % | {:.1} %",
+            band.len(),
+            share(&near[0]),
+            share(&near[1]),
+            share(&near[2])
         );
     }
     rows.sort_by_key(|r| std::cmp::Reverse(r.3));
