@@ -249,6 +249,7 @@ fn main() -> anyhow::Result<()> {
                 min_bend: (config.solve.min_curve_bend_px / sim.camera.fx),
                 min_sample_spread: 4.0 * sol.sigma_img,
                 max_depth_sigma: f64::INFINITY,
+                min_sin_angle: config.solve.min_sin_angle,
             };
             let known: Vec<(usize, Vector3<f64>)> = crossings
                 .iter()

@@ -40,6 +40,10 @@ pub struct FitContext {
     /// standard deviation, from the fit's covariance) is dropped
     /// ([`super::SolveParams::uncertain_plane_ratio`]); infinity keeps all.
     pub max_depth_sigma: f64,
+    /// Crossings of two curves at an angle whose sine is below this are left out
+    /// ([`super::SolveParams::min_sin_angle`]): their position along the curves is
+    /// poorly fixed.
+    pub min_sin_angle: f64,
 }
 
 impl PlaneFit {
@@ -358,6 +362,7 @@ mod tests {
             min_bend: 1e-3,
             min_sample_spread: 4e-9,
             max_depth_sigma: f64::INFINITY,
+            min_sin_angle: 0.1,
         };
         let fit = fit_plane(&cr, &known, Some(scan.planes[1]), &ctx, None).expect("fit");
         let truth = scan.planes[0];
@@ -420,6 +425,7 @@ mod tests {
             min_bend: 1e-3,
             min_sample_spread: 4e-5,
             max_depth_sigma: f64::INFINITY,
+            min_sin_angle: 0.1,
         };
         let fit = fit_plane(&crossings, &known, Some(partner), &ctx, None).expect("fit");
         assert!(
@@ -457,6 +463,7 @@ mod tests {
             min_bend: 0.0,
             min_sample_spread: 0.0,
             max_depth_sigma: f64::INFINITY,
+            min_sin_angle: 0.1,
         };
         let worst = |fit: &PlaneFit| {
             known

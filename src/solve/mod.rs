@@ -849,6 +849,7 @@ pub fn solve_warm(
         } else {
             f64::INFINITY
         },
+        min_sin_angle: params.min_sin_angle,
     };
     let (rc, rv, uncertain_planes) = extend_and_refine(
         problem,

@@ -54,7 +54,7 @@ fn not_rejected(problem: &Problem, solution: &Solution) -> Vec<bool> {
 }
 
 /// Fills unsolved planes that have at least three `usable` crossings with solved
-/// planes, using `sequence[c] = (frame, laser)` of every curve for the prior. Planes
+/// planes (at an angle whose sine is at least the solve's `min_sin_angle`), using `sequence[c] = (frame, laser)` of every curve for the prior. Planes
 /// and crossings are in the solution's (focal-corrected) coordinates.
 pub fn fill_free_turns(
     problem: &Problem,
@@ -70,6 +70,11 @@ pub fn fill_free_turns(
         return out;
     }
     let lambda = solution.focal_scale;
+    let min_sin_angle = solution
+        .fit_context
+        .map_or(super::SolveParams::default().min_sin_angle, |c| {
+            c.min_sin_angle
+        });
     let mut bad_curve = vec![false; n];
     for &c in &solution.rejected_curves {
         if let Some(b) = bad_curve.get_mut(c as usize) {
@@ -82,7 +87,7 @@ pub fn fill_free_turns(
         if !usable[k] || a == b || a >= n || b >= n {
             continue;
         }
-        if c.sin_angle < 0.1 {
+        if c.sin_angle < min_sin_angle {
             continue;
         }
         adj[a].push((b, k));
@@ -243,7 +248,7 @@ fn extend_around_solved(
         .crossings
         .iter()
         .zip(usable)
-        .map(|(c, &u)| u && c.sin_angle >= 0.1 && c.a != c.b)
+        .map(|(c, &u)| u && c.sin_angle >= ctx.min_sin_angle && c.a != c.b)
         .collect();
     let (rc, rv, _) = super::extend_and_refine(problem, &active, &mut given, &fixed, ctx, 0);
     let planes = given
@@ -407,6 +412,31 @@ mod tests {
             let u = Vector3::new(c.u[0], c.u[1], 1.0);
             assert!(((v - other).dot(&u)).abs() < 1e-12, "off a crossing");
         }
+
+        // The solve's `min_sin_angle` holds here too: crossings at a shallower angle
+        // than the configured one fix nothing.
+        let mut strict = Solution::empty();
+        strict.planes = vec![Some(plane(0.0)), None, Some(plane(2.0)), Some(other)];
+        strict.fit_context = Some(super::super::FitContext {
+            focal_scale: 1.0,
+            sigma_img: 1e-4,
+            sigma_ortho: 1e-3,
+            outlier_k: 4.0,
+            min_crossings: 3,
+            min_bend: 1e-3,
+            min_sample_spread: 0.0,
+            max_depth_sigma: f64::INFINITY,
+            min_sin_angle: 0.95,
+        });
+        let fill = fill_free_turns(
+            &problem,
+            &all,
+            &mut strict,
+            &[(0, 0), (1, 0), (2, 0), (1, 1)],
+            3,
+        );
+        assert_eq!((fill.filled, fill.too_few), (0, 1));
+        assert!(strict.planes[1].is_none());
 
         // Crossings with a second solved curve that disagree with the first ones (two
         // of them, off the line, and not on one plane with it) are refused, not

@@ -166,6 +166,7 @@ fn solve_and_grow(
         min_sample_spread: 0.0,
         // Only the global solve's own extension judges uncertainty.
         max_depth_sigma: f64::INFINITY,
+        min_sin_angle: params.min_sin_angle,
     };
     let adj = adjacency(problem.num_curves, cr, active);
     let mut failed = vec![false; problem.num_curves];
