@@ -204,11 +204,13 @@ impl ColourLut {
     /// Response of laser `laser` to one pixel's difference, and whether the pixel is
     /// another laser's: the difference in the laser's own channels (the largest of
     /// them) when the pixel is weak, white or of that laser's colour, or of another
-    /// laser's colour but below `mask_value`; zero on any other colour. So the two
-    /// stripes of a cross stay apart where they cross, the detector can drop points
-    /// whose smoothing window reaches into the other laser's stripe, and the other
-    /// sheet's glow under water (in its own channels) neither raises nor hides this
-    /// laser's faint stripe.
+    /// laser's colour but below `mask_value`; on a hue no laser has, the same when the
+    /// light outside the laser's channels is below `mask_value`, else zero. So the two
+    /// stripes of a cross stay apart where they cross (their mix is bright in both), the
+    /// detector can drop points whose smoothing window reaches into the other laser's
+    /// stripe, and the other sheet's glow under water (in its own channels) neither
+    /// raises nor hides this laser's faint stripe: a faint red stripe on a green veil
+    /// of 10–20 grey levels reads orange, outside red's hues.
     #[inline]
     pub fn response(&self, laser: u8, dr: u8, dg: u8, db: u8) -> (u8, bool) {
         let [r, g, b] = self.channels[laser as usize];
@@ -218,7 +220,12 @@ impl ColourLut {
         match self.classify(dr, dg, db) {
             None => (own, false),
             Some(c) if c == laser || c == Class::White as u8 => (own, false),
-            Some(c) if c == Class::Other as u8 => (0, false),
+            Some(c) if c == Class::Other as u8 => {
+                let foreign = (dr * u8::from(!r))
+                    .max(dg * u8::from(!g))
+                    .max(db * u8::from(!b));
+                (if foreign < self.mask_value { own } else { 0 }, false)
+            }
             Some(_) if dr.max(dg).max(db) < self.mask_value => (own, false),
             Some(_) => (0, true),
         }
@@ -270,6 +277,19 @@ mod tests {
         // green alone.
         assert_eq!(lut.response(1, 9, 13, 0).0 - lut.response(1, 9, 3, 0).0, 10);
         assert_eq!(lut.response(0, 5, 25, 8), (0, true));
+        // A faint red stripe on the green sheet's veil under water reads orange, a hue
+        // of neither laser: it is red's, as the veil is too dim to be green's stripe.
+        // Bright in both (where the stripes cross) it is neither's.
+        // Both dim: weak for both, each sees its own channel. Red brighter: not green's.
+        assert_eq!(lut.classify(22, 17, 1), Some(Class::Other as u8));
+        assert_eq!(lut.response(0, 22, 17, 1), (22, false));
+        assert_eq!(lut.response(1, 22, 17, 1), (17, false));
+        assert_eq!(lut.classify(30, 24, 2), Some(Class::Other as u8));
+        assert_eq!(lut.response(0, 30, 24, 2), (30, false));
+        assert_eq!(lut.response(1, 30, 24, 2), (0, false));
+        assert_eq!(lut.classify(150, 140, 0), Some(Class::Other as u8));
+        assert_eq!(lut.response(0, 150, 140, 0), (0, false));
+        assert_eq!(lut.response(1, 150, 140, 0), (0, false));
     }
 
     #[test]

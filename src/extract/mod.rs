@@ -17,7 +17,10 @@
 //!    is bright enough to be its stripe (`block_contrast`), so the two stripes of the
 //!    cross stay apart; dimmer pixels of the other colour (its sheet's glow under
 //!    water) count as weak and leave no holes beside the stripe, and since that glow is
-//!    in the other laser's channels it neither hides nor fakes `k`'s faint stripe.
+//!    in the other laser's channels it neither hides nor fakes `k`'s faint stripe. A
+//!    pixel of a hue no laser has counts for `k` (activation and response) when its
+//!    light outside `k`'s channels is under `block_contrast`: a faint red stripe on the
+//!    green sheet's veil reads orange.
 //! 2. *Ridges* (per laser, active tiles only): separable Gaussian derivatives, the
 //!    Hessian, its eigenvector across the line, the second-order Taylor offset
 //!    `t = −(n·∇g)/λ` that must stay in the pixel (`|t·n| ≤ 0.5` in both axes), for
@@ -603,6 +606,14 @@ impl Extractor {
                             self.active[c as usize][t] = true;
                         } else if c == colour::Class::White as u8 {
                             self.white[t] = true;
+                        } else {
+                            // A hue of no laser: a laser's stripe under a dim veil
+                            // of another colour ([`ColourLut::response`]).
+                            for k in 0..n_lasers {
+                                if self.lut.response(k, dr, dg, db).0 >= min_value {
+                                    self.active[k as usize][t] = true;
+                                }
+                            }
                         }
                     }
                 }
