@@ -10,6 +10,8 @@
 //! there, with strengths), `PROFILE=y,x0,x1` / `COLUMN=x,y0,y1` (frame − background
 //! along a row / column, beside lit.png).
 //!
+//! The scene is a built-in's name or a scene TOML file.
+//!
 //! cargo run --release --example frame_coverage -- room 0 17 42
 //! CROP=850,780,400,150 cargo run --release --example frame_coverage -- pipes 80
 
@@ -20,7 +22,11 @@ use image::{Rgb, RgbImage};
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let scene = args.first().map(String::as_str).unwrap_or("room");
-    let mut spec = builtin_scene(scene).ok_or_else(|| anyhow::anyhow!("no scene {scene}"))?;
+    // A built-in scene's name, or a scene TOML file.
+    let mut spec = match builtin_scene(scene) {
+        Some(spec) => spec,
+        None => crossline::simulate::load_scene_file(std::path::Path::new(scene))?,
+    };
     // TURBIDITY=T, SEED=S: as `simulate --turbidity T --seed S`.
     if let Some(t) = std::env::var("TURBIDITY").ok().and_then(|t| t.parse().ok()) {
         spec.water.turbidity = t;
