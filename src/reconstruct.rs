@@ -753,7 +753,7 @@ pub fn reconstruct_curves(
             );
             faint_planes = extended + filled;
             tracing::debug!(extended, filled, "planes from faint crossings");
-            if let Some(warning) = orthogonality_warning(sol.orthogonality_rms_deg) {
+            if let Some(warning) = solve::orthogonality_warning(sol.orthogonality_rms_deg) {
                 tracing::warn!("{warning}");
             }
             sol
@@ -884,25 +884,6 @@ pub fn reconstruct_curves(
     })
 }
 
-/// Above this RMS (degrees) the crosses of a self-calibration are too far from
-/// orthogonal to trust: a good solve of a real cross laser leaves a few hundredths to
-/// a few tenths of a degree (the projector's own tolerance, the crossings' noise).
-const SUSPECT_ORTHOGONALITY_DEG: f64 = 1.0;
-
-/// What to tell the user when the solved crosses are far from orthogonal: the cloud
-/// is then likely warped, from a wrong solution or an input the method does not fit.
-fn orthogonality_warning(rms_deg: f64) -> Option<String> {
-    (rms_deg > SUSPECT_ORTHOGONALITY_DEG).then(|| {
-        format!(
-            "the solved crosses are {rms_deg:.2}° from orthogonal (RMS; a good solve \
-             leaves well under {SUSPECT_ORTHOGONALITY_DEG}°), so the cloud is probably \
-             warped: check that the two lasers are told apart (the overlay of \
-             `crossline extract`), that the camera file belongs to this camera and \
-             resolution, and that the projector's two lines are orthogonal"
-        )
-    })
-}
-
 /// Whether solution `a` fits clearly worse than `b`: its crosses further from
 /// orthogonal (by more than twice and 0.05°), or its crossings' residuals more than
 /// twice as large.
@@ -929,17 +910,6 @@ mod tests {
             polyline: points.clone(),
             points,
         }
-    }
-
-    #[test]
-    fn crosses_far_from_orthogonal_are_reported() {
-        assert_eq!(orthogonality_warning(0.05), None);
-        assert_eq!(orthogonality_warning(SUSPECT_ORTHOGONALITY_DEG), None);
-        let w = orthogonality_warning(10.5).expect("a warning at 10.5°");
-        assert!(
-            w.contains("10.50°") && w.contains("crossline extract"),
-            "{w}"
-        );
     }
 
     /// The consensus re-solve is kept unless it fits clearly worse than the first: a

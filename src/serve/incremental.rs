@@ -290,6 +290,12 @@ impl Incremental {
         let ctx = sol.fit_context?;
         self.counts.planes_in_global_solve = sol.global.len() as u64;
         self.counts.residual_rms_px = sol.residual_rms * self.camera.fx.max(self.camera.fy);
+        // Said once when the solve turns suspect, not at every epoch.
+        if self.counts.orthogonality_rms_deg <= crate::solve::SUSPECT_ORTHOGONALITY_DEG {
+            if let Some(warning) = crate::solve::orthogonality_warning(sol.orthogonality_rms_deg) {
+                tracing::warn!(epoch = self.epoch + 1, "{warning}");
+            }
+        }
         self.counts.orthogonality_rms_deg = sol.orthogonality_rms_deg;
         self.solution = Some(EpochSolution {
             planes_given,

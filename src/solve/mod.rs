@@ -257,6 +257,25 @@ pub struct GlobalCoplanarity {
     pub rejected_curves: Vec<u32>,
 }
 
+/// Above this RMS (degrees) the crosses of a self-calibration are too far from
+/// orthogonal to trust: a good solve of a real cross laser leaves a few hundredths to
+/// a few tenths of a degree (the projector's own tolerance, the crossings' noise).
+pub const SUSPECT_ORTHOGONALITY_DEG: f64 = 1.0;
+
+/// What to tell the user when the solved crosses are far from orthogonal: the cloud
+/// is then likely warped, from a wrong solution or an input the method does not fit.
+pub fn orthogonality_warning(rms_deg: f64) -> Option<String> {
+    (rms_deg > SUSPECT_ORTHOGONALITY_DEG).then(|| {
+        format!(
+            "the solved crosses are {rms_deg:.2}° from orthogonal (RMS; a good solve \
+             leaves well under {SUSPECT_ORTHOGONALITY_DEG}°), so the cloud is probably \
+             warped: check that the two lasers are told apart (the overlay of \
+             `crossline extract`), that the camera file belongs to this camera and \
+             resolution, and that the projector's two lines are orthogonal"
+        )
+    })
+}
+
 pub(crate) fn median(mut x: Vec<f64>) -> Option<f64> {
     if x.is_empty() {
         return None;

@@ -506,3 +506,14 @@ fn loosely_fixed_planes_are_the_worst_ones() {
         "dropped {lost:?}, kept median {median_kept}"
     );
 }
+
+#[test]
+fn crosses_far_from_orthogonal_are_reported() {
+    assert_eq!(orthogonality_warning(0.05), None);
+    assert_eq!(orthogonality_warning(SUSPECT_ORTHOGONALITY_DEG), None);
+    let w = orthogonality_warning(10.5).expect("a warning at 10.5°");
+    assert!(
+        w.contains("10.50°") && w.contains("crossline extract"),
+        "{w}"
+    );
+}
