@@ -54,8 +54,9 @@ fn not_rejected(problem: &Problem, solution: &Solution) -> Vec<bool> {
 }
 
 /// Fills unsolved planes that have at least three `usable` crossings with solved
-/// planes (at an angle whose sine is at least the solve's `min_sin_angle`), using `sequence[c] = (frame, laser)` of every curve for the prior. Planes
-/// and crossings are in the solution's (focal-corrected) coordinates.
+/// planes (at an angle whose sine is at least the solve's `min_sin_angle`), using
+/// `sequence[c] = (frame, laser)` of every curve for the prior. Planes and crossings
+/// are in the solution's (focal-corrected) coordinates.
 pub fn fill_free_turns(
     problem: &Problem,
     usable: &[bool],
