@@ -637,7 +637,8 @@ pub fn reconstruct_curves(
     times.intersect_s = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
-    // Each curve's plane, from the planes of (frame, laser).
+    // Each curve's plane, from the planes of (frame, laser), in the coordinates of
+    // the curves' points (see [`given_planes`]).
     let planes_of_curves = |planes: &[Option<Vector3<f64>>]| -> Vec<Option<Vector3<f64>>> {
         curve_plane
             .iter()
@@ -661,7 +662,7 @@ pub fn reconstruct_curves(
             // rejection, but its crossings disagree together. Those curves, and the
             // stretches of curves that run off the surface, leave the solve.
             let check = cloud::check_crossings(
-                &planes_of_curves(&sol.planes),
+                &planes_of_curves(&given_planes(&sol)),
                 &curve_crossings,
                 &faint,
                 &config.triangulate,
@@ -772,9 +773,11 @@ pub fn reconstruct_curves(
     };
     times.solve_s = t.elapsed().as_secs_f64();
 
-    // The solver's planes live in the file's normalised coordinates; with a focal
-    // estimate λ the true rays are (x/λ, y/λ, 1), so points are scaled in X and Y.
+    // The curves' points are in the file's normalised coordinates `(x, y)`; with a
+    // focal estimate λ the true rays are (x/λ, y/λ, 1). Points are triangulated on the
+    // planes in the file's coordinates, then scaled by 1/λ in X and Y.
     let lambda = solution.focal_scale;
+    let given = given_planes(&solution);
     let t = Instant::now();
     let mut cloud = Cloud {
         colors: Some(Vec::new()),
@@ -784,7 +787,7 @@ pub fn reconstruct_curves(
     };
     let mut pixels: Vec<[f32; 2]> = Vec::new();
     let mut stats = TriangulateStats::default();
-    let curve_planes = planes_of_curves(&solution.planes);
+    let curve_planes = planes_of_curves(&given);
     // Faint curves must be confirmed by a crossing that agrees.
     let check =
         cloud::check_crossings(&curve_planes, &curve_crossings, &faint, &config.triangulate);
@@ -793,7 +796,7 @@ pub fn reconstruct_curves(
     for (id, plane) in planes.iter().enumerate() {
         let first = cid;
         cid += plane.curves.len();
-        let Some(v) = solution.planes.get(id).copied().flatten() else {
+        let Some(v) = given.get(id).copied().flatten() else {
             continue;
         };
         for (k, curve) in plane.curves.iter().enumerate() {
@@ -843,9 +846,9 @@ pub fn reconstruct_curves(
     cloud::apply_scale(&mut cloud, factor);
     times.triangulate_s = t.elapsed().as_secs_f64();
 
-    // Planes in the output frame: X' = f·diag(1/λ,1/λ,1)·X, so v' = diag(λ,λ,1)·v / f.
-    let out_planes = solution
-        .planes
+    // Planes in the output frame: X' = f·diag(1/λ,1/λ,1)·X, so v' = diag(λ,λ,1)·v / f
+    // for a plane v of the file's coordinates.
+    let out_planes = given
         .iter()
         .map(|p| p.map(|v| Vector3::new(v.x * lambda, v.y * lambda, v.z) / factor))
         .collect();
@@ -882,6 +885,19 @@ pub fn reconstruct_curves(
         report,
         planes: out_planes,
     })
+}
+
+/// A solution's planes in the coordinates of the crossings and curve points it was
+/// solved from (the file's normalised coordinates): the solver returns them in the
+/// focal-corrected ones, `v · (x/λ, y/λ, 1)` being the inverse depth, which is
+/// `(v.x/λ, v.y/λ, v.z) · (x, y, 1)`.
+fn given_planes(solution: &Solution) -> Vec<Option<Vector3<f64>>> {
+    let lambda = solution.focal_scale;
+    solution
+        .planes
+        .iter()
+        .map(|p| p.map(|v| Vector3::new(v.x / lambda, v.y / lambda, v.z)))
+        .collect()
 }
 
 /// Whether solution `a` fits clearly worse than `b`: its crosses further from
@@ -928,6 +944,83 @@ mod tests {
         assert!(fits_worse(&fit(10.5, 2.6e-3), &first));
         assert!(fits_worse(&fit(0.2, 4e-5), &first));
         assert!(fits_worse(&fit(0.06, 9e-5), &first));
+    }
+
+    /// Under water behind a flat port the camera file's (in-air) focal length is about
+    /// 1.33 times too short: every normalised point is 1.33 times too far out. With
+    /// the focal length estimated, the cloud must still lie on the surface, in the
+    /// true camera's frame, and the output planes must hold their points.
+    #[test]
+    fn an_estimated_focal_length_gives_the_true_cloud() {
+        let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+        let scan = random_scan(&ScanSpec::default());
+        let strong = Config::default().solve.min_curve_strength;
+        let lambda = 1.33;
+        let per_frame: Vec<Vec<Curve>> = (0..scan.planes.len() / 2)
+            .map(|k| {
+                (0..2)
+                    .map(|l| {
+                        let mut c = curve(
+                            &camera,
+                            &scan.scene,
+                            &scan.planes[2 * k + l],
+                            l as u8,
+                            2.0 * strong,
+                        );
+                        for p in c.points.iter_mut().chain(c.polyline.iter_mut()) {
+                            *p = [p[0] * lambda, p[1] * lambda];
+                        }
+                        c
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut config = Config::default();
+        config.solve.estimate_focal = true;
+        let rec = reconstruct_curves(
+            per_frame,
+            &camera,
+            &config,
+            PlaneSource::SelfCalibrated,
+            &ScaleMode::Factor { factor: 1.0 },
+            None,
+        )
+        .expect("solves");
+        let r = &rec.report;
+        assert!((r.focal_scale - lambda).abs() < 1e-4, "{r:?}");
+        assert!(r.points > 1000, "{r:?}");
+        let scale: Vec<f64> = rec
+            .cloud
+            .points
+            .iter()
+            .map(|p| {
+                let (x, y) = (p[0] as f64 / p[2] as f64, p[1] as f64 / p[2] as f64);
+                scan.scene.inverse_depth(x, y) * p[2] as f64
+            })
+            .collect();
+        let s0 = scale[scale.len() / 2];
+        let worst = scale
+            .iter()
+            .map(|s| (s / s0 - 1.0).abs())
+            .fold(0.0, f64::max);
+        assert!(
+            worst < 1e-3,
+            "a point {:.3} % off the surface",
+            100.0 * worst
+        );
+        // Each point on its output plane (same frame and laser).
+        let frames = rec.cloud.frames.as_deref().unwrap_or_default();
+        let lasers = rec.cloud.lasers.as_deref().unwrap_or_default();
+        for (i, p) in rec.cloud.points.iter().enumerate().step_by(97) {
+            let plane = (frames[i] * 2 + lasers[i] as u32) as usize;
+            let v = rec.planes[plane].expect("plane of a point");
+            let x = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            assert!(
+                (v.dot(&x) - 1.0).abs() < 1e-4,
+                "point {i}: v·X = {}",
+                v.dot(&x)
+            );
+        }
     }
 
     #[test]

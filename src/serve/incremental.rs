@@ -371,10 +371,11 @@ impl Incremental {
         };
         let lambda = sol.lambda;
         for id in range {
+            // In the given coordinates, those of the curves' points: the true rays are
+            // (x/λ, y/λ, 1), so X and Y are scaled by 1/λ below.
             let Some(v) = sol.planes_given.get(id).copied().flatten() else {
                 continue;
             };
-            let v = Vector3::new(v.x * lambda, v.y * lambda, v.z);
             let plane = &self.planes[id];
             for curve in &plane.curves {
                 if reconstruct::is_faint(curve, self.config.solve.min_curve_strength) {
@@ -442,5 +443,91 @@ impl Incremental {
 
     pub fn epoch(&self) -> u32 {
         self.epoch
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solve::synthetic::{curve_polyline, random_scan, ScanSpec};
+
+    /// With the focal length estimated (the in-air calibration under water: every
+    /// normalised point 1.33 times too far out), the streamed cloud lies on the
+    /// surface. It once came out many times off: the epoch's planes were turned back
+    /// into the focal-corrected coordinates and met the uncorrected points.
+    #[test]
+    fn an_epoch_with_an_estimated_focal_length_lies_on_the_surface() {
+        let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+        let scan = random_scan(&ScanSpec::default());
+        let lambda = 1.33;
+        let mut config = Config::default();
+        config.solve.estimate_focal = true;
+        let strength = 2.0 * config.solve.min_curve_strength;
+        let mut solver = Incremental::new(
+            camera.clone(),
+            config,
+            IncrementalParams {
+                min_planes_first_solve: scan.planes.len(),
+                solve_growth: 10.0,
+            },
+            ScaleMode::Factor { factor: 1.0 },
+        );
+        let mut points = Vec::new();
+        let mut epochs = 0;
+        let mut take = |out: Output| {
+            epochs += usize::from(out.epoch.is_some());
+            points.extend(out.points);
+            epochs
+        };
+        for k in 0..scan.planes.len() / 2 {
+            let curves: Vec<Curve> = (0..2)
+                .filter_map(|l| {
+                    let v = scan.planes[2 * k + l];
+                    let pts: Vec<[f64; 2]> = curve_polyline(&scan.scene, &v, 1.0 / camera.fx)?
+                        .into_iter()
+                        .map(|p| [p[0] * lambda, p[1] * lambda])
+                        .collect();
+                    Some(Curve {
+                        laser: l as u8,
+                        points_px: pts
+                            .iter()
+                            .map(|p| {
+                                let [u, v] = camera.pixel_from_normalized(p[0], p[1]);
+                                [u as f32, v as f32]
+                            })
+                            .collect(),
+                        strength: vec![strength; pts.len()],
+                        polyline: pts.clone(),
+                        points: pts,
+                    })
+                })
+                .collect();
+            take(solver.add_frame(curves, 0));
+        }
+        // The solve runs in the background; empty frames poll it.
+        for _ in 0..500 {
+            if take(solver.add_frame(Vec::new(), 0)) > 0 {
+                break;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+        assert!(points.len() > 1000, "{} points", points.len());
+        let scale: Vec<f64> = points
+            .iter()
+            .map(|p| {
+                let [x, y, z] = p.xyz.map(f64::from);
+                scan.scene.inverse_depth(x / z, y / z) * z
+            })
+            .collect();
+        let s0 = scale[scale.len() / 2];
+        let worst = scale
+            .iter()
+            .map(|s| (s / s0 - 1.0).abs())
+            .fold(0.0, f64::max);
+        assert!(
+            worst < 1e-3,
+            "a point {:.3} % off the surface",
+            100.0 * worst
+        );
     }
 }
