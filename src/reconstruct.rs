@@ -638,7 +638,7 @@ pub fn reconstruct_curves(
 
     let t = Instant::now();
     // Each curve's plane, from the planes of (frame, laser), in the coordinates of
-    // the curves' points (see [`given_planes`]).
+    // the curves' points (see [`Solution::given_planes`]).
     let planes_of_curves = |planes: &[Option<Vector3<f64>>]| -> Vec<Option<Vector3<f64>>> {
         curve_plane
             .iter()
@@ -662,7 +662,7 @@ pub fn reconstruct_curves(
             // rejection, but its crossings disagree together. Those curves, and the
             // stretches of curves that run off the surface, leave the solve.
             let check = cloud::check_crossings(
-                &planes_of_curves(&given_planes(&sol)),
+                &planes_of_curves(&sol.given_planes()),
                 &curve_crossings,
                 &faint,
                 &config.triangulate,
@@ -777,7 +777,7 @@ pub fn reconstruct_curves(
     // focal estimate λ the true rays are (x/λ, y/λ, 1). Points are triangulated on the
     // planes in the file's coordinates, then scaled by 1/λ in X and Y.
     let lambda = solution.focal_scale;
-    let given = given_planes(&solution);
+    let given = solution.given_planes();
     let t = Instant::now();
     let mut cloud = Cloud {
         colors: Some(Vec::new()),
@@ -887,19 +887,6 @@ pub fn reconstruct_curves(
     })
 }
 
-/// A solution's planes in the coordinates of the crossings and curve points it was
-/// solved from (the file's normalised coordinates): the solver returns them in the
-/// focal-corrected ones, `v · (x/λ, y/λ, 1)` being the inverse depth, which is
-/// `(v.x/λ, v.y/λ, v.z) · (x, y, 1)`.
-fn given_planes(solution: &Solution) -> Vec<Option<Vector3<f64>>> {
-    let lambda = solution.focal_scale;
-    solution
-        .planes
-        .iter()
-        .map(|p| p.map(|v| Vector3::new(v.x / lambda, v.y / lambda, v.z)))
-        .collect()
-}
-
 /// Whether solution `a` fits clearly worse than `b`: its crosses further from
 /// orthogonal (by more than twice and 0.05°), or its crossings' residuals more than
 /// twice as large.
@@ -911,7 +898,9 @@ fn fits_worse(a: &Solution, b: &Solution) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::solve::synthetic::{curve_polyline, random_scan, ScanSpec, Scene};
+    use crate::solve::synthetic::{
+        curve_polyline, random_scan, worst_off_surface, ScanSpec, Scene,
+    };
 
     /// The image of plane `v` on `scene` as an extracted curve of constant strength.
     fn curve(camera: &Camera, scene: &Scene, v: &Vector3<f64>, laser: u8, strength: f32) -> Curve {
@@ -989,20 +978,7 @@ mod tests {
         let r = &rec.report;
         assert!((r.focal_scale - lambda).abs() < 1e-4, "{r:?}");
         assert!(r.points > 1000, "{r:?}");
-        let scale: Vec<f64> = rec
-            .cloud
-            .points
-            .iter()
-            .map(|p| {
-                let (x, y) = (p[0] as f64 / p[2] as f64, p[1] as f64 / p[2] as f64);
-                scan.scene.inverse_depth(x, y) * p[2] as f64
-            })
-            .collect();
-        let s0 = scale[scale.len() / 2];
-        let worst = scale
-            .iter()
-            .map(|s| (s / s0 - 1.0).abs())
-            .fold(0.0, f64::max);
+        let worst = worst_off_surface(&scan.scene, &rec.cloud.points);
         assert!(
             worst < 1e-3,
             "a point {:.3} % off the surface",
@@ -1109,17 +1085,7 @@ mod tests {
         assert!(without_local_gate.crossings_in_solve < r.crossings);
         assert_eq!(without_local_gate.crossings, r.crossings);
         // Every point lies on the surface (up to the one global scale).
-        let scale: Vec<f64> = rec
-            .cloud
-            .points
-            .iter()
-            .map(|p| {
-                let (x, y) = (p[0] as f64 / p[2] as f64, p[1] as f64 / p[2] as f64);
-                scan.scene.inverse_depth(x, y) * p[2] as f64
-            })
-            .collect();
-        let s0 = scale[scale.len() / 2];
-        assert!(scale.iter().all(|s| (s / s0 - 1.0).abs() < 1e-3));
+        assert!(worst_off_surface(&scan.scene, &rec.cloud.points) < 1e-3);
         let frames = rec.cloud.frames.as_deref().unwrap_or_default();
         let lasers = rec.cloud.lasers.as_deref().unwrap_or_default();
         let faint_kept = (0..frames.len())

@@ -281,11 +281,7 @@ impl Incremental {
             }
         };
         let lambda = sol.focal_scale;
-        let mut planes_given: Vec<Option<Vector3<f64>>> = sol
-            .planes
-            .iter()
-            .map(|p| p.map(|v| Vector3::new(v.x / lambda, v.y / lambda, v.z)))
-            .collect();
+        let mut planes_given = sol.given_planes();
         planes_given.resize(self.planes.len(), None);
         let ctx = sol.fit_context?;
         self.counts.planes_in_global_solve = sol.global.len() as u64;
@@ -449,7 +445,7 @@ impl Incremental {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::solve::synthetic::{curve_polyline, random_scan, ScanSpec};
+    use crate::solve::synthetic::{curve_polyline, random_scan, worst_off_surface, ScanSpec};
 
     /// With the focal length estimated (the in-air calibration under water: every
     /// normalised point 1.33 times too far out), the streamed cloud lies on the
@@ -512,18 +508,8 @@ mod tests {
             std::thread::sleep(std::time::Duration::from_millis(10));
         }
         assert!(points.len() > 1000, "{} points", points.len());
-        let scale: Vec<f64> = points
-            .iter()
-            .map(|p| {
-                let [x, y, z] = p.xyz.map(f64::from);
-                scan.scene.inverse_depth(x / z, y / z) * z
-            })
-            .collect();
-        let s0 = scale[scale.len() / 2];
-        let worst = scale
-            .iter()
-            .map(|s| (s / s0 - 1.0).abs())
-            .fold(0.0, f64::max);
+        let xyz: Vec<[f32; 3]> = points.iter().map(|p| p.xyz).collect();
+        let worst = worst_off_surface(&scan.scene, &xyz);
         assert!(
             worst < 1e-3,
             "a point {:.3} % off the surface",

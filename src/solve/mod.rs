@@ -224,6 +224,18 @@ pub struct Solution {
 }
 
 impl Solution {
+    /// The planes in the coordinates of the crossings (and curve points) they were
+    /// solved from, the file's normalised ones: [`Self::planes`] are in the
+    /// focal-corrected ones, `v · (x/λ, y/λ, 1)` being the inverse depth, which is
+    /// `(v.x/λ, v.y/λ, v.z) · (x, y, 1)`.
+    pub fn given_planes(&self) -> Vec<Option<Vector3<f64>>> {
+        let lambda = self.focal_scale;
+        self.planes
+            .iter()
+            .map(|p| p.map(|v| Vector3::new(v.x / lambda, v.y / lambda, v.z)))
+            .collect()
+    }
+
     /// A solution with no plane solved (focal scale 1, zero residuals).
     pub fn empty() -> Self {
         Self {

@@ -239,11 +239,7 @@ fn extend_around_solved(
     ctx: &super::FitContext,
 ) -> (Vec<Option<Vector3<f64>>>, Vec<usize>, Vec<u32>) {
     let lambda = solution.focal_scale;
-    let mut given: Vec<Option<Vector3<f64>>> = solution
-        .planes
-        .iter()
-        .map(|p| p.map(|v| Vector3::new(v.x / lambda, v.y / lambda, v.z)))
-        .collect();
+    let mut given = solution.given_planes();
     let fixed: Vec<bool> = given.iter().map(|p| p.is_some()).collect();
     let active: Vec<bool> = problem
         .crossings

@@ -213,6 +213,25 @@ fn curve_pieces(scene: &Scene, v: &Vector3<f64>) -> Vec<([f64; 2], [f64; 2])> {
     pieces
 }
 
+/// Largest relative departure of `points` (camera frame) from `scene`, at the global
+/// scale of the middle point of the list: 0 when all lie on it up to one scale.
+pub fn worst_off_surface(scene: &Scene, points: &[[f32; 3]]) -> f64 {
+    let scale: Vec<f64> = points
+        .iter()
+        .map(|p| {
+            let [x, y, z] = p.map(f64::from);
+            scene.inverse_depth(x / z, y / z) * z
+        })
+        .collect();
+    let Some(&s0) = scale.get(scale.len() / 2) else {
+        return 0.0;
+    };
+    scale
+        .iter()
+        .map(|s| (s / s0 - 1.0).abs())
+        .fold(0.0, f64::max)
+}
+
 /// The image of plane `v` as one polyline with segments no longer than `max_segment`;
 /// `None` when it is empty or not one connected path in the window.
 pub fn curve_polyline(scene: &Scene, v: &Vector3<f64>, max_segment: f64) -> Option<Vec<[f64; 2]>> {
