@@ -10,7 +10,8 @@
 //! stripe's peak contrast: pixels within 2 px of an extracted point, of one on the
 //! surface by its true plane, and (`CLOUD=cloud.ply`, reconstruct's output) of one
 //! whose frame and laser have points in that cloud, so that a cloud's coverage loss
-//! splits into extraction, off-surface curves, unsolved planes and the rest.
+//! splits into extraction, off-surface curves, unsolved planes and the rest; and the
+//! signed depth error of the strong points on their true planes, per laser.
 //!
 //! cargo run --release --example curve_truth -- target/bench-accuracy/sim-turbid-300 [config.toml]
 
@@ -159,6 +160,40 @@ fn main() -> anyhow::Result<()> {
             share(&near[1]),
             share(&near[2])
         );
+    }
+    {
+        // Signed relative depth error on the true planes of the strong points on the
+        // surface (within 2 %), per laser: a systematic error of the stripe centres
+        // shows as a median away from zero (under water, towards the camera).
+        for laser in 0..2u8 {
+            let mut e = Vec::new();
+            for (f, curves) in per_frame.iter().enumerate() {
+                let Some(truth) = sim.truth.frames.get(f) else {
+                    continue;
+                };
+                for c in curves.iter().filter(|c| c.laser == laser) {
+                    let v = Vector3::from(truth.planes[laser as usize]);
+                    for (p, s) in c.points.iter().zip(&c.strength) {
+                        if *s < strong {
+                            continue;
+                        }
+                        let u = Vector3::new(p[0], p[1], 1.0);
+                        let z = 1.0 / v.dot(&u);
+                        if let Some(zt) = sim.true_depth(&u) {
+                            let r = (z - zt) / zt;
+                            if r.abs() < 0.02 {
+                                e.push(r);
+                            }
+                        }
+                    }
+                }
+            }
+            e.sort_by(f64::total_cmp);
+            let n = e.len();
+            if n > 0 {
+                println!("laser {laser}: {n} points, signed error p10 {:.4} % median {:.4} % p90 {:.4} %", 100.0*e[n/10], 100.0*e[n/2], 100.0*e[9*n/10]);
+            }
+        }
     }
     rows.sort_by_key(|r| std::cmp::Reverse(r.3));
     for r in rows.iter().filter(|r| r.4 >= strong).take(15) {
