@@ -279,8 +279,8 @@ mod tests {
         assert_eq!(lut.response(0, 5, 25, 8), (0, true));
         // A faint red stripe on the green sheet's veil under water reads orange, a hue
         // of neither laser: it is red's, as the veil is too dim to be green's stripe.
-        // Bright in both (where the stripes cross) it is neither's.
-        // Both dim: weak for both, each sees its own channel. Red brighter: not green's.
+        // Both dim: weak for both, each sees its own channel. Red brighter than
+        // `mask_value`: not green's. Bright in both (where the stripes cross): neither's.
         assert_eq!(lut.classify(22, 17, 1), Some(Class::Other as u8));
         assert_eq!(lut.response(0, 22, 17, 1), (22, false));
         assert_eq!(lut.response(1, 22, 17, 1), (17, false));
