@@ -48,6 +48,14 @@ fn main() -> anyhow::Result<()> {
         )
         .collect();
     let strong = config.solve.min_curve_strength;
+    // Relative depth error of a point on plane `v` against the scene; `None` where
+    // the plane puts it behind the camera or its ray meets no surface.
+    let error_on = |v: &Vector3<f64>, p: &[f64; 2]| -> Option<f64> {
+        let u = Vector3::new(p[0], p[1], 1.0);
+        let z = 1.0 / v.dot(&u);
+        let zt = sim.true_depth(&u)?;
+        (z > 0.0).then(|| (z - zt) / zt)
+    };
     // (frame, laser, points, off, max strength, first point)
     let mut rows = Vec::new();
     for (f, curves) in per_frame.iter().enumerate() {
@@ -59,14 +67,7 @@ fn main() -> anyhow::Result<()> {
             let off = c
                 .points
                 .iter()
-                .filter(|p| {
-                    let u = Vector3::new(p[0], p[1], 1.0);
-                    let z = 1.0 / v.dot(&u);
-                    match sim.true_depth(&u) {
-                        Some(zt) => !(z > 0.0 && ((z - zt) / zt).abs() <= 0.02),
-                        None => true,
-                    }
-                })
+                .filter(|p| !error_on(&v, p).is_some_and(|r| r.abs() <= 0.02))
                 .count();
             let max = c.strength.iter().cloned().fold(0.0f32, f32::max);
             rows.push((f, c.laser, c.points.len(), off, max, c.points_px[0]));
@@ -112,11 +113,7 @@ fn main() -> anyhow::Result<()> {
                 .as_ref()
                 .is_none_or(|s| s.contains(&(f as u32, c.laser)));
             for (p, px) in c.points.iter().zip(&c.points_px) {
-                let u = Vector3::new(p[0], p[1], 1.0);
-                let z = 1.0 / v.dot(&u);
-                let on = sim
-                    .true_depth(&u)
-                    .is_some_and(|zt| z > 0.0 && ((z - zt) / zt).abs() <= 0.02);
+                let on = error_on(&v, p).is_some_and(|r| r.abs() <= 0.02);
                 let (cu, cv) = (px[0].round() as i64, px[1].round() as i64);
                 for y in (cv - 2).max(0)..=(cv + 2).min(h as i64 - 1) {
                     for x in (cu - 2).max(0)..=(cu + 2).min(w as i64 - 1) {
@@ -177,13 +174,8 @@ fn main() -> anyhow::Result<()> {
                         if *s < strong {
                             continue;
                         }
-                        let u = Vector3::new(p[0], p[1], 1.0);
-                        let z = 1.0 / v.dot(&u);
-                        if let Some(zt) = sim.true_depth(&u) {
-                            let r = (z - zt) / zt;
-                            if r.abs() < 0.02 {
-                                e.push(r);
-                            }
+                        if let Some(r) = error_on(&v, p).filter(|r| r.abs() < 0.02) {
+                            e.push(r);
                         }
                     }
                 }
