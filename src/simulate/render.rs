@@ -12,9 +12,10 @@
 //! Under water: per-channel attenuation `exp(-c (|P - C| + |P|))`; forward scatter mixes
 //! in a wider, dimmer copy of the same profile (blur `forward_blur_mrad`), so centres stay
 //! exact; backscatter adds glow where a camera ray crosses a sheet in front of its
-//! surface (`∝ 1/|cos|`, attenuated, clipped), up to where the sheet first meets a
-//! surface (a per-frame table of 4096 sheet rays; nothing can hide the glow from the
-//! camera, as it lies in front of the pixel's first surface).
+//! surface (`∝ 1/|cos|`, attenuated, clipped, its edge at the stripe's centre line as
+//! soft as the stripe), up to where the sheet first meets a surface (a per-frame table
+//! of 4096 sheet rays; nothing can hide the glow from the camera, as it lies in front
+//! of the pixel's first surface).
 
 use image::RgbImage;
 use nalgebra::{Matrix2, Matrix3x2, Vector3};
@@ -390,7 +391,7 @@ impl Simulator {
                         }
                     }
                     if let Some(water) = &self.water {
-                        self.add_glow(hot, laser, water, &mut v);
+                        self.add_glow(y * w + x, hot, laser, water, &mut v);
                     }
                 }
             }
@@ -506,8 +507,15 @@ impl Simulator {
     }
 
     /// Backscatter: the sheet lights the water column in front of the surface.
+    ///
+    /// The glow ends where the sheet meets the surface, at the stripe's centre line, and
+    /// its edge is as soft as the stripe: a ray near the line crosses part of the
+    /// sheet's thickness in front of the surface, the rest behind it, and the lens
+    /// blurs both alike. So the glow is scaled by `Φ(d / s)`, `d` the surface point's
+    /// distance from the sheet on the glow side and `s²` the stripe's own variance
+    /// there (`b² + g² σ_psf²`, [`Self::add_stripe`]).
     #[inline]
-    fn add_glow(&self, px: &Hot, l: &LaserFrame, water: &Water, v: &mut [f64; 3]) {
+    fn add_glow(&self, i: usize, px: &Hot, l: &LaserFrame, water: &Water, v: &mut [f64; 3]) {
         if water.backscatter <= 0.0 {
             return;
         }
@@ -516,9 +524,30 @@ impl Simulator {
         let p = V3::new(px.p[0] as f64, px.p[1] as f64, px.p[2] as f64);
         let np = l.n.dot(&p);
         let lambda = l.h / np;
-        if !(lambda > 0.0 && lambda < 1.0) {
+        // NaN (a ray parallel to the sheet) fails too.
+        if lambda.is_nan() || lambda <= 0.0 {
             return;
         }
+        let edge = if px.jf2 < 0.0 {
+            // The ray leaves the scene: no surface, no edge.
+            f64::from(u8::from(lambda < 1.0))
+        } else {
+            let d = (np - l.h) * l.h.signum();
+            let window2 = 16.0 * (self.beam2 + px.jf2 as f64 * self.psf2);
+            if d * d > window2 {
+                f64::from(u8::from(d > 0.0))
+            } else {
+                let j = &self.pixels[i].j;
+                let gu = l.n.x * j[0] as f64 + l.n.y * j[1] as f64 + l.n.z * j[2] as f64;
+                let gv = l.n.x * j[3] as f64 + l.n.y * j[4] as f64 + l.n.z * j[5] as f64;
+                let s2 = self.beam2 + (gu * gu + gv * gv) * self.psf2;
+                normal_cdf(d / s2.sqrt())
+            }
+        };
+        if edge <= 0.0 {
+            return;
+        }
+        let lambda = lambda.min(1.0);
         let x = p * lambda;
         let w = x - l.centre;
         let wa = w.dot(&l.axis);
@@ -542,7 +571,7 @@ impl Simulator {
         let g = water.backscatter * (self.reference_distance / dist) * path / self.power;
         let tr = water.transmission(dist + lambda * range);
         for c in 0..3 {
-            v[c] += (g * l.colour[c] * tr[c]).min(60.0);
+            v[c] += edge * (g * l.colour[c] * tr[c]).min(60.0);
         }
     }
 
@@ -726,5 +755,22 @@ fn inverse_normal_cdf(p: f64) -> f64 {
             / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
     } else {
         -inverse_normal_cdf(1.0 - p)
+    }
+}
+
+/// The standard normal distribution function `Φ(u)` (Abramowitz & Stegun 7.1.26,
+/// |error| < 1.5e-7).
+fn normal_cdf(u: f64) -> f64 {
+    let x = u.abs() * std::f64::consts::FRAC_1_SQRT_2;
+    let k = 1.0 / (1.0 + 0.327_591_1 * x);
+    let poly = k
+        * (0.254_829_592
+            + k * (-0.284_496_736
+                + k * (1.421_413_741 + k * (-1.453_152_027 + k * 1.061_405_429))));
+    let half_erfc = 0.5 * poly * (-x * x).exp();
+    if u >= 0.0 {
+        1.0 - half_erfc
+    } else {
+        half_erfc
     }
 }
