@@ -69,6 +69,23 @@ pub(crate) struct LinePoint {
     pub ny: f32,
     pub strength: f32,
     pub pixel: u32,
+    /// What [`step_shift`] needs to move the point off a glow step under it: the
+    /// offset found without one, the smoothed response and its first two derivatives
+    /// across, the distances the step is measured over ([`Detector::step_across`]) and
+    /// the scale. The linker measures the steps of linked points only
+    /// (`super::glow_moves`).
+    pub ridge: [f32; 4],
+    pub flanks: [f32; 2],
+    pub sigma: f32,
+}
+
+impl LinePoint {
+    /// The move along the normal (px) that takes this point off a glow step of
+    /// `step` grey levels ([`step_shift`]).
+    pub fn step_move(&self, step: f32) -> f32 {
+        let [t, g, d1, d2] = self.ridge;
+        step_shift(t, [g, d1, d2], step, self.flanks, self.sigma) - t
+    }
 }
 
 pub(crate) const NO_POINT: u32 = u32::MAX;
@@ -95,6 +112,7 @@ struct Level {
     flank_px: f32,
     per_grey: f32,
     max_width_px: f64,
+    sigma_px: f32,
 }
 
 /// Margin around an active tile over which its stripe width is measured.
@@ -153,8 +171,129 @@ impl BandMoments {
 /// (`2√3 σ`) has fallen to a quarter there, a narrower one further.
 const FLANK_SIGMAS: f64 = 2.5;
 /// Neither flank of a ridge point may exceed this share of its centre
-/// ([`Detector::stands_out`]).
+/// ([`Detector::flanks`]).
 const FLANK_RATIO: f32 = 0.5;
+
+/// The centre of a stripe that lies on a step of the response, as offset along the
+/// normal from the pixel where the smoothed response `g` and its first and second
+/// derivatives across, `d1` and `d2`, were measured; `t` is the offset found without
+/// the step, `flank_step` the response ahead of the stripe minus behind it, as the
+/// mean at the distances `flanks` either side, `sigma` the smoothing scale.
+///
+/// Under water the sheet lights the water in front of the surface: its glow fills the
+/// image on one side of the stripe and ends at the stripe's centre, where the sheet
+/// meets the surface. A step under a Gaussian ridge tilts it, and the detector's
+/// centre moves towards the bright side by `step / peak · S² / (s √2π)` (`s` the
+/// stripe's own width, `S² = s² + σ²`, the step blurred as the stripe): 0.1–0.3 px on
+/// the simulated pipes, every one towards the camera. The step's own share of `g`,
+/// `d1` and `d2` is taken out, with its edge at the centre being solved for and
+/// blurred as the stripe is (the glow crosses the same sheet thickness, through the
+/// same lens: `S = √(g / −d2)` of the ridge), and the offset solved again. A response
+/// with no step gives `t` back.
+pub(crate) fn step_shift(
+    t: f32,
+    [g, d1, d2]: [f32; 3],
+    flank_step: f32,
+    flanks: [f32; 2],
+    sigma: f32,
+) -> f32 {
+    if flank_step == 0.0 || d2 >= 0.0 {
+        return t;
+    }
+    const INV_SQRT_2PI: f32 = 0.398_942_3;
+    let (mut c, mut gr, mut d2r) = (t, g, d2);
+    for _ in 0..STEP_ITERATIONS {
+        // The ridge's width from its value and curvature `c` off its centre: a Gaussian
+        // of std `S` there has `−d2 / g = 1/S² − c²/S⁴`. The edge is blurred as the
+        // ridge is, and never less than by the smoothing.
+        let q = (-d2r / gr.max(f32::MIN_POSITIVE)).max(0.0);
+        let c2 = c * c;
+        let disc = 1.0 - 4.0 * c2 * q;
+        let inv_s2 = if c2 > 1e-6 && disc > 0.0 {
+            (1.0 - disc.sqrt()) / (2.0 * c2)
+        } else {
+            q
+        };
+        let blur = if inv_s2 > 0.0 {
+            (1.0 / inv_s2).max(sigma * sigma).sqrt()
+        } else {
+            sigma
+        };
+        // The flanks, `flank` px either side, miss the blurred step's own tails.
+        let seen = normal_cdf(flanks[0] / blur) + normal_cdf(flanks[1] / blur) - 1.0;
+        let step = flank_step / seen;
+        let u = -c / blur;
+        let phi = INV_SQRT_2PI * (-0.5 * u * u).exp();
+        // The step rises by `step` along the normal from nothing on its dark side.
+        gr = g - step * normal_cdf(u) - (-step).max(0.0);
+        let d1r = d1 - step * phi / blur;
+        d2r = d2 + step * u * phi / (blur * blur);
+        if d2r >= 0.0 {
+            return t;
+        }
+        c = if gr > 0.0 {
+            d1r * gr / (d1r * d1r - gr * d2r)
+        } else {
+            -d1r / d2r
+        };
+    }
+    c
+}
+
+/// Distances, one px apart from a point's flank distance out, at which the step
+/// under it is measured ([`Detector::step_across`]).
+pub(crate) const STEP_DISTANCES: usize = 4;
+
+/// A step counts only where it is this steady over [`STEP_DISTANCES`] (largest over
+/// smallest, one sign): glow is a plateau, a neighbouring stripe is not.
+const PLATEAU_RATIO: f32 = 2.0;
+
+/// The glow step of a run of a curve from the medians of its points' steps at each
+/// distance ([`Detector::step_across`]): their mean if they hold steady, else none.
+pub(crate) fn plateau_step(profile: &[f32; STEP_DISTANCES]) -> f32 {
+    let lo = profile.iter().copied().fold(f32::MAX, f32::min);
+    let hi = profile.iter().copied().fold(f32::MIN, f32::max);
+    let steady = (lo > 0.0 && hi <= PLATEAU_RATIO * lo) || (hi < 0.0 && lo >= PLATEAU_RATIO * hi);
+    if steady {
+        profile.iter().sum::<f32>() / STEP_DISTANCES as f32
+    } else {
+        0.0
+    }
+}
+
+/// Rounds of [`step_shift`]: each moves the step's edge to the last centre found.
+const STEP_ITERATIONS: usize = 6;
+
+/// `Φ(u)`, the standard normal distribution function (Abramowitz & Stegun 7.1.26,
+/// error under 1e-7).
+fn normal_cdf(u: f32) -> f32 {
+    let x = u.abs() * std::f32::consts::FRAC_1_SQRT_2;
+    let k = 1.0 / (1.0 + 0.327_591_1 * x);
+    let poly = k
+        * (0.254_829_6
+            + k * (-0.284_496_74 + k * (1.421_413_7 + k * (-1.453_152_1 + k * 1.061_405_4))));
+    let erf = 1.0 - poly * (-x * x).exp();
+    if u >= 0.0 {
+        0.5 + 0.5 * erf
+    } else {
+        0.5 - 0.5 * erf
+    }
+}
+
+/// The response at `(x, y)`, bilinear between pixel centres, the border repeated.
+#[inline]
+fn bilinear(response: &[f32], (w, h): (usize, usize), x: f32, y: f32) -> f32 {
+    let (xf, yf) = (x.floor(), y.floor());
+    let (fx, fy) = (x - xf, y - yf);
+    let (x0, y0) = (xf as isize, yf as isize);
+    let px = |xx: isize, yy: isize| {
+        let xx = xx.clamp(0, w as isize - 1) as usize;
+        let yy = yy.clamp(0, h as isize - 1) as usize;
+        response[yy * w + xx]
+    };
+    (px(x0, y0) * (1.0 - fx) + px(x0 + 1, y0) * fx) * (1.0 - fy)
+        + (px(x0, y0 + 1) * (1.0 - fx) + px(x0 + 1, y0 + 1) * fx) * fy
+}
 
 /// A pixel rectangle `[x0, x1, y0, y1)`; empty when `x0 >= x1`.
 type Rect = [usize; 4];
@@ -205,6 +344,7 @@ impl Detector {
                 flank_px: (FLANK_SIGMAS * s.sigma_px).max(2.0) as f32,
                 per_grey: s.eigenvalue_per_grey_level as f32,
                 max_width_px: s.max_width_px,
+                sigma_px: s.sigma_px as f32,
             })
             .collect();
         let max_radius = levels.iter().map(|l| l.kernels.radius).max().unwrap_or(1);
@@ -227,7 +367,7 @@ impl Detector {
             response_box: vec![EMPTY; tiles_x * tiles_y],
             filled_box: vec![EMPTY; tiles_x * tiles_y],
             rows_box: vec![EMPTY; tiles_x * tiles_y],
-            acc: vec![0.0; 6 * tile],
+            acc: vec![0.0; 8 * tile],
             points: Vec::new(),
             index: vec![NO_POINT; n],
             levels,
@@ -582,38 +722,43 @@ impl Detector {
         })
     }
 
-    /// Whether the response at `p` stands above both its flanks, `flank_px` away
-    /// along the normal `n`: each flank at most [`FLANK_RATIO`] of the centre, each
-    /// value the mean of three samples along the line. A stripe (on a dark background
-    /// or on a pedestal beside it) does; the bright edge of a wide glow band, whose
-    /// Hessian also reads as a ridge, has the glow on one flank and does not.
-    fn stands_out(
+    /// The response at `p` and at its two flanks, `flank_px` back and forth along the
+    /// normal `n`: `[centre, behind, ahead]`, each the mean of three samples along
+    /// the line.
+    fn flanks(
         response: &[f32],
         (w, h): (usize, usize),
         p: [f32; 2],
         n: [f32; 2],
         flank_px: f32,
-    ) -> bool {
-        let at = |x: f32, y: f32| -> f32 {
-            let (xf, yf) = (x.floor(), y.floor());
-            let (fx, fy) = (x - xf, y - yf);
-            let (x0, y0) = (xf as isize, yf as isize);
-            let px = |xx: isize, yy: isize| {
-                let xx = xx.clamp(0, w as isize - 1) as usize;
-                let yy = yy.clamp(0, h as isize - 1) as usize;
-                response[yy * w + xx]
-            };
-            (px(x0, y0) * (1.0 - fx) + px(x0 + 1, y0) * fx) * (1.0 - fy)
-                + (px(x0, y0 + 1) * (1.0 - fx) + px(x0 + 1, y0 + 1) * fx) * fy
-        };
+    ) -> [f32; 3] {
+        let at = |x: f32, y: f32| bilinear(response, (w, h), x, y);
         // Mean of three samples along the line (the tangent is (−ny, nx)).
         let mean = |d: f32| -> f32 {
             let (cx, cy) = (p[0] + d * n[0], p[1] + d * n[1]);
             (at(cx - n[1], cy + n[0]) + at(cx, cy) + at(cx + n[1], cy - n[0])) / 3.0
         };
-        let centre = mean(0.0);
-        let limit = FLANK_RATIO * centre;
-        mean(flank_px) <= limit && mean(-flank_px) <= limit
+        [mean(0.0), mean(-flank_px), mean(flank_px)]
+    }
+
+    /// The step of the response across a line at `p` (normal `n`) at
+    /// [`STEP_DISTANCES`] distances, `flank_px` out and one px apart: at each, the
+    /// mean of three samples along the line ahead minus the same behind.
+    pub(crate) fn step_across(
+        &self,
+        p: [f32; 2],
+        n: [f32; 2],
+        flank_px: f32,
+    ) -> [f32; STEP_DISTANCES] {
+        let at = |x: f32, y: f32| bilinear(&self.response, (self.width, self.height), x, y);
+        let side = |d: f32| -> f32 {
+            let (cx, cy) = (p[0] + d * n[0], p[1] + d * n[1]);
+            at(cx - n[1], cy + n[0]) + at(cx, cy) + at(cx + n[1], cy - n[0])
+        };
+        std::array::from_fn(|k| {
+            let d = flank_px + k as f32;
+            (side(d) - side(-d)) / 3.0
+        })
     }
 
     fn column_pass_and_hessian(&mut self, level: usize, t: usize, min_strength: f32) {
@@ -625,14 +770,18 @@ impl Detector {
             mask_radius,
             flank_px,
             per_grey,
+            sigma_px,
             ..
         } = &self.levels[level];
-        let (mask_radius, flank_px, per_grey) = (*mask_radius, *flank_px, *per_grey);
+        let (mask_radius, flank_px, per_grey, sigma_px) =
+            (*mask_radius, *flank_px, *per_grey, *sigma_px);
         let (gx, rest) = self.acc.split_at_mut(self.tile);
         let (gy, rest) = rest.split_at_mut(self.tile);
         let (gxx, rest) = rest.split_at_mut(self.tile);
         let (gxy, rest) = rest.split_at_mut(self.tile);
-        let (gyy, g) = rest.split_at_mut(self.tile);
+        let (gyy, rest) = rest.split_at_mut(self.tile);
+        let (g, rest) = rest.split_at_mut(self.tile);
+        let (smooth, slope) = rest.split_at_mut(self.tile);
         // Taps at offsets 0..=r; those at −i mirror them (see `row_pass`).
         let r = kernels.radius;
         let (k0, k1, k2) = (&kernels.k0[r..], &kernels.k1[r..], &kernels.k2[r..]);
@@ -717,13 +866,15 @@ impl Detector {
             // the strength test and fail the offset test: branching on each test
             // mispredicts, and its square roots and divisions run one at a time). The
             // sums are overwritten in place with (nx, ny, λ, ox, oy, keep).
-            for (((((pxx, pxy), pyy), px), py), p) in gxx[..n]
+            for (((((((pxx, pxy), pyy), px), py), p), sm), sl) in gxx[..n]
                 .iter_mut()
                 .zip(gxy[..n].iter_mut())
                 .zip(gyy[..n].iter_mut())
                 .zip(gx[..n].iter_mut())
                 .zip(gy[..n].iter_mut())
                 .zip(g[..n].iter_mut())
+                .zip(smooth[..n].iter_mut())
+                .zip(slope[..n].iter_mut())
             {
                 let (a, b, c) = (*pxx, *pxy, *pyy);
                 let half = 0.5 * (a + c);
@@ -766,6 +917,7 @@ impl Detector {
                     | (ox.abs() > 0.5)
                     | (oy.abs() > 0.5);
                 (*pxx, *pxy, *pyy, *px, *py) = (nx, ny, lambda, ox, oy);
+                (*sm, *sl) = (gk, d1);
                 *p = if drop { 0.0 } else { 1.0 };
             }
             let found = gxx[..n]
@@ -778,6 +930,7 @@ impl Detector {
                 .enumerate()
                 .filter(|(_, (_, keep))| **keep != 0.0);
             for (k, (((((&nx, &ny), &lambda), &ox), &oy), _)) in found {
+                let (gk, d1) = (smooth[k], slope[k]);
                 let x = x0 + k;
                 if *tile_near_mask.get_or_insert_with(|| {
                     Self::near_mask(&self.masked, (w, h), mask_radius, [x0, x1, y0, y1])
@@ -786,9 +939,15 @@ impl Detector {
                     continue;
                 }
                 let (px, py) = (x as f32 + ox, y as f32 + oy);
-                if !Self::stands_out(&self.response, (w, h), [px, py], [nx, ny], flank_px) {
+                let [centre, below, above] =
+                    Self::flanks(&self.response, (w, h), [px, py], [nx, ny], flank_px);
+                // Stands above both flanks: a stripe (on a dark background or on a
+                // pedestal beside it) does; the bright edge of a wide glow band, whose
+                // Hessian also reads as a ridge, has the glow on one flank and does not.
+                if below > FLANK_RATIO * centre || above > FLANK_RATIO * centre {
                     continue;
                 }
+                let t = ox * nx + oy * ny;
                 let pixel = y * w + x;
                 self.index[pixel] = self.points.len() as u32;
                 self.points.push(LinePoint {
@@ -798,6 +957,9 @@ impl Detector {
                     ny,
                     strength: -lambda / per_grey,
                     pixel: pixel as u32,
+                    ridge: [t, gk, d1, lambda],
+                    flanks: [flank_px, flank_px + (STEP_DISTANCES - 1) as f32],
+                    sigma: sigma_px,
                 });
             }
         }

@@ -244,6 +244,9 @@ mod tests {
             ny: angle.cos(),
             strength,
             pixel: (y * w + x) as u32,
+            ridge: [0.0, 1.0, 0.0, -1.0],
+            flanks: [2.0; 2],
+            sigma: 1.0,
         }
     }
 
