@@ -770,6 +770,60 @@ fn refit_shift(
     Some(orth)
 }
 
+/// Groups of the delete-a-group jackknife of the focal scale ([`focal_jackknife_std`]).
+const JACKKNIFE_GROUPS: usize = 10;
+
+/// Standard deviation of the focal scale from the noise of the crossings: the global
+/// subset's null vector and the orthogonality fit solved again [`JACKKNIFE_GROUPS`]
+/// times, each time without one group of its inlier crossings (every tenth, by a
+/// hash of its index), and the jackknife's `√(K − 1)` times the replicates' spread.
+/// Systematic errors (a bias of the stripe centres) are not in it. `None` when a
+/// re-solve fails.
+fn focal_jackknife_std(
+    problem: &Problem,
+    global: &GlobalCoplanarity,
+    crosses: &[(usize, usize)],
+    params: &SolveParams,
+) -> Option<f64> {
+    let subset = &global.subset;
+    let cr = problem.crossings;
+    let n = subset.curves.len();
+    let group = |k: usize| (mix64(k as u64) % JACKKNIFE_GROUPS as u64) as usize;
+    let mut lambdas = Vec::with_capacity(JACKKNIFE_GROUPS);
+    for g in 0..JACKKNIFE_GROUPS {
+        let ids: Vec<usize> = subset
+            .crossings
+            .iter()
+            .copied()
+            .filter(|&k| group(k) != g)
+            .collect();
+        // The weights of the robust rounds' inliers, without their Cauchy factor.
+        let weights: Vec<f64> = ids
+            .iter()
+            .map(|&k| 1.0 / (1.0 + cr[k].u[0] * cr[k].u[0] + cr[k].u[1] * cr[k].u[1]))
+            .collect();
+        let nm = nullspace::normal_matrix(n, &subset.local, cr, &ids, &weights);
+        let ns = nullspace::null_space(nm).ok()?;
+        let (orth, _) =
+            ortho::solve_orthogonality(&ns.v0, crosses, true, params.outlier_mad_k, NOISE_FLOOR)
+                .ok()?;
+        lambdas.push(orth.focal_scale);
+    }
+    // The spread of the replicates, robustly (one replicate may find the fit's other
+    // minimum): each moved by about a K-th of the data, so the whole by √(K − 1) times.
+    let mid = median(lambdas.clone())?;
+    let mad = median(lambdas.iter().map(|l| (l - mid).abs()).collect())?;
+    Some(MAD_TO_SIGMA * mad * ((lambdas.len() - 1) as f64).sqrt())
+}
+
+/// SplitMix64's finaliser: a well-mixed hash of `x`.
+fn mix64(mut x: u64) -> u64 {
+    x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    x ^ (x >> 31)
+}
+
 /// Solves the plane of every curve it can (see the module docs for the stages).
 pub fn solve(problem: &Problem, params: &SolveParams) -> Result<Solution, SolveError> {
     solve_warm(problem, params, None)
@@ -924,11 +978,20 @@ pub fn solve_warm(
             }
         }
     }
+    // The fit's own deviation sees only the crosses' scatter about the planes it was
+    // given; the planes' own noise, through the null vector, dominates.
+    let focal_scale_std = match (orth.focal_scale_std, params.estimate_focal) {
+        (Some(fit), true) => {
+            let planes_std = focal_jackknife_std(problem, &global, &crosses, params);
+            Some(fit.hypot(planes_std.unwrap_or(0.0)))
+        }
+        (fit, _) => fit,
+    };
     Ok(Solution {
         planes,
         global: subset.curves.clone(),
         focal_scale: lambda,
-        focal_scale_std: orth.focal_scale_std,
+        focal_scale_std,
         rejected_crossings,
         rejected_curves,
         shallow_crossings,

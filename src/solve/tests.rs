@@ -517,3 +517,62 @@ fn crosses_far_from_orthogonal_are_reported() {
         "{w}"
     );
 }
+
+/// With noisy crossings the reported deviation of the focal scale must be about the
+/// spread of the estimate over noise draws: the orthogonality fit's own covariance
+/// alone (the planes taken as exact) was 10–1000 times too small on the simulated
+/// recordings. Over 16 draws of 0.3 px noise (at 1000 px), the mean reported
+/// deviation is within a factor of two of the spread of the estimates.
+#[test]
+fn the_focal_scale_deviation_follows_the_noise() {
+    let lambda = 1.2;
+    let (s, exact) = scan(30, 34);
+    let (mut estimates, mut reported) = (Vec::new(), Vec::new());
+    let mut fit_only = Vec::new();
+    for draw in 0..16 {
+        let mut rng = Rng::new(100 + draw);
+        let cr: Vec<Crossing> = exact
+            .iter()
+            .map(|c| Crossing {
+                u: [
+                    (c.u[0] + 3e-4 * rng.normal()) * lambda,
+                    (c.u[1] + 3e-4 * rng.normal()) * lambda,
+                ],
+                ..*c
+            })
+            .collect();
+        let params = SolveParams {
+            estimate_focal: true,
+            ..SolveParams::default()
+        };
+        let sol = solve(&problem(&s, &cr), &params).expect("solvable");
+        estimates.push(sol.focal_scale);
+        reported.push(sol.focal_scale_std.expect("a deviation"));
+        // The fit's own part, for the message.
+        let global = robust_global_warm(&problem(&s, &cr), &vec![true; cr.len()], &params, None)
+            .expect("global");
+        let crosses = crosses_among(&global.subset.curves, &global.subset.local, &s.partner);
+        let (orth, _) =
+            ortho::solve_orthogonality(&global.null_space.v0, &crosses, true, 4.0, NOISE_FLOOR)
+                .expect("orthogonality");
+        fit_only.push(orth.focal_scale_std.expect("a deviation"));
+    }
+    let n = estimates.len() as f64;
+    let mean = estimates.iter().sum::<f64>() / n;
+    let spread = (estimates.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    let mean_reported = reported.iter().sum::<f64>() / n;
+    let mean_fit_only = fit_only.iter().sum::<f64>() / n;
+    assert!(
+        (mean - lambda).abs() < 3.0 * spread.max(1e-6),
+        "mean {mean}, spread {spread}"
+    );
+    let ratio = mean_reported / spread;
+    eprintln!(
+        "focal: spread {spread:.2e} reported {mean_reported:.2e} fit alone {mean_fit_only:.2e}"
+    );
+    assert!(
+        (0.5..=2.0).contains(&ratio),
+        "reported {mean_reported:.2e} against a spread of {spread:.2e} (the fit alone: \
+         {mean_fit_only:.2e})"
+    );
+}
