@@ -830,6 +830,39 @@ fn step_shift_recovers_the_centre_of_a_ridge_on_a_step() {
     }
 }
 
+/// Signed errors (px) of the points within 2 px of a stripe centred at 0.3 px across a
+/// 96×96 frame, whose red profile across (signed distance `d`) is `profile`, at four
+/// angles, noise `noise` from `seed`.
+fn errors_across_rotations(profile: &dyn Fn(f64) -> f64, noise: f64, seed: u64) -> Vec<f64> {
+    let (w, h) = (96u32, 96u32);
+    let camera = Camera::with_fov(w, h, 1.0);
+    let params = ExtractParams {
+        min_curve_length_px: 5.0,
+        ..ExtractParams::default()
+    };
+    let mut ex = Extractor::new(&params, &camera).expect("extractor");
+    let background = Background::from_image(render(w, h, &flat(20.0), &[], 0.0, &mut Rng(1)));
+    let mut all = Vec::new();
+    for theta in [0.1, 0.9, 2.0, 2.9] {
+        let frame = glow_frame_seeded(w, h, theta, profile, noise, seed);
+        let curves = ex.extract(&frame, &background);
+        let (nx, ny) = (-theta.sin(), theta.cos());
+        let c = 0.5 * (w as f64 - 1.0);
+        let dist = |x: f64, y: f64| (x - c) * nx + (y - c) * ny - STRIPE_OFFSET;
+        // The stripe's own points (a neighbour is a curve of its own).
+        let e: Vec<f64> = errors(&curves, w, h, 16.0, &dist)
+            .into_iter()
+            .filter(|e| e.abs() < 2.0)
+            .collect();
+        assert!(e.len() >= 50, "theta {theta}: only {} points", e.len());
+        all.extend(e);
+    }
+    all
+}
+
+/// Where [`errors_across_rotations`] puts the stripe, px across from the frame's centre.
+const STRIPE_OFFSET: f64 = 0.3;
+
 /// The stripe under water, on the glow of its own sheet: the glow fills one side and
 /// ends at the stripe's centre, its edge as soft as the stripe. At peak-to-noise 40
 /// and a glow of 0.4 of the peak (which moves the plain detector's centre by 0.3 px),
@@ -839,38 +872,13 @@ fn step_shift_recovers_the_centre_of_a_ridge_on_a_step() {
 fn stripe_on_the_step_of_its_glow_is_centred() {
     let (peak, s) = (60.0, 1.06);
     for (ratio, seed) in [(0.4f64, 3), (-0.4, 4), (0.2, 5), (0.0, 6)] {
-        let (w, h) = (96u32, 96u32);
-        let camera = Camera::with_fov(w, h, 1.0);
-        let params = ExtractParams {
-            min_curve_length_px: 5.0,
-            ..ExtractParams::default()
+        // Glow behind the stripe for ratio > 0, ahead for ratio < 0.
+        let profile = |d: f64| {
+            let x = (d - STRIPE_OFFSET) * ratio.signum();
+            let glow = peak * ratio.abs() * 0.5 * erfc_approx(x / (s * std::f64::consts::SQRT_2));
+            peak * (-0.5 * x * x / (s * s)).exp() + glow
         };
-        let mut ex = Extractor::new(&params, &camera).expect("extractor");
-        let background = Background::from_image(render(w, h, &flat(20.0), &[], 0.0, &mut Rng(1)));
-        let mut all = Vec::new();
-        for theta in [0.1, 0.9, 2.0, 2.9] {
-            let off = 0.3;
-            // Glow behind the stripe (d < off) for ratio > 0, ahead for ratio < 0.
-            let profile = |d: f64| {
-                let x = (d - off) * ratio.signum();
-                let glow =
-                    peak * ratio.abs() * 0.5 * erfc_approx(x / (s * std::f64::consts::SQRT_2));
-                peak * (-0.5 * x * x / (s * s)).exp() + glow
-            };
-            let frame = glow_frame_seeded(w, h, theta, &profile, peak / 40.0, seed);
-            let curves = ex.extract(&frame, &background);
-            let (nx, ny) = (-theta.sin(), theta.cos());
-            let c = 0.5 * (w as f64 - 1.0);
-            let dist = |x: f64, y: f64| (x - c) * nx + (y - c) * ny - off;
-            let e = errors(&curves, w, h, 16.0, &dist);
-            assert!(
-                e.len() >= 50,
-                "ratio {ratio} theta {theta}: only {} points",
-                e.len()
-            );
-            all.extend(e);
-        }
-        let (m, sd) = mean_std(&all);
+        let (m, sd) = mean_std(&errors_across_rotations(&profile, peak / 40.0, seed));
         eprintln!("glow step {ratio}: bias {m:.4} std {sd:.4}");
         assert!(m.abs() <= 0.02, "glow step {ratio}: bias {m:.4} px");
         assert!(sd <= 0.05, "glow step {ratio}: std {sd:.4} px");
@@ -883,35 +891,11 @@ fn stripe_on_the_step_of_its_glow_is_centred() {
 #[test]
 fn narrow_neighbour_is_not_taken_for_a_glow_step() {
     let (peak, s) = (60.0, 1.06);
-    let (w, h) = (96u32, 96u32);
-    let camera = Camera::with_fov(w, h, 1.0);
-    let params = ExtractParams {
-        min_curve_length_px: 5.0,
-        ..ExtractParams::default()
+    let profile = |d: f64| {
+        let (x, y) = (d - STRIPE_OFFSET, d - STRIPE_OFFSET - 5.5);
+        peak * (-0.5 * x * x / (s * s)).exp() + 0.4 * peak * (-0.5 * y * y / (s * s)).exp()
     };
-    let mut ex = Extractor::new(&params, &camera).expect("extractor");
-    let background = Background::from_image(render(w, h, &flat(20.0), &[], 0.0, &mut Rng(1)));
-    let mut all = Vec::new();
-    for theta in [0.1, 0.9, 2.0, 2.9] {
-        let off = 0.3;
-        let profile = |d: f64| {
-            let (x, y) = (d - off, d - off - 5.5);
-            peak * (-0.5 * x * x / (s * s)).exp() + 0.4 * peak * (-0.5 * y * y / (s * s)).exp()
-        };
-        let frame = glow_frame_seeded(w, h, theta, &profile, peak / 40.0, 9);
-        let curves = ex.extract(&frame, &background);
-        let (nx, ny) = (-theta.sin(), theta.cos());
-        let c = 0.5 * (w as f64 - 1.0);
-        let dist = |x: f64, y: f64| (x - c) * nx + (y - c) * ny - off;
-        // The main stripe's points only (the neighbour is a curve of its own).
-        let e: Vec<f64> = errors(&curves, w, h, 16.0, &dist)
-            .into_iter()
-            .filter(|e| e.abs() < 2.0)
-            .collect();
-        assert!(e.len() >= 50, "theta {theta}: only {} points", e.len());
-        all.extend(e);
-    }
-    let (m, sd) = mean_std(&all);
+    let (m, sd) = mean_std(&errors_across_rotations(&profile, peak / 40.0, 9));
     eprintln!("neighbour bias {m:.4} std {sd:.4}");
     assert!(
         m.abs() <= 0.02 && sd <= 0.05,
