@@ -71,11 +71,11 @@ pub(crate) struct LinePoint {
     pub pixel: u32,
     /// What [`step_shift`] needs to move the point off a glow step under it: the
     /// offset found without one, the smoothed response and its first two derivatives
-    /// across, the distances the step is measured over ([`Detector::step_across`]) and
-    /// the scale. The linker measures the steps of linked points only
-    /// (`super::glow_moves`).
+    /// across, the flank distance from which the step is measured
+    /// ([`Detector::step_across`]) and the scale. The linker measures the steps of
+    /// linked points only (`super::glow_moves`).
     pub ridge: [f32; 4],
-    pub flanks: [f32; 2],
+    pub flank_px: f32,
     pub sigma: f32,
 }
 
@@ -84,7 +84,8 @@ impl LinePoint {
     /// `step` grey levels ([`step_shift`]).
     pub fn step_move(&self, step: f32) -> f32 {
         let [t, g, d1, d2] = self.ridge;
-        step_shift(t, [g, d1, d2], step, self.flanks, self.sigma) - t
+        let flanks = [self.flank_px, self.flank_px + (STEP_DISTANCES - 1) as f32];
+        step_shift(t, [g, d1, d2], step, flanks, self.sigma) - t
     }
 }
 
@@ -865,7 +866,8 @@ impl Detector {
             // without branches so that it vectorises (most pixels of a wide stripe pass
             // the strength test and fail the offset test: branching on each test
             // mispredicts, and its square roots and divisions run one at a time). The
-            // sums are overwritten in place with (nx, ny, λ, ox, oy, keep).
+            // sums are overwritten in place with (nx, ny, λ, ox, oy, keep), and the
+            // smoothed response and its slope across kept for the glow step.
             for (((((((pxx, pxy), pyy), px), py), p), sm), sl) in gxx[..n]
                 .iter_mut()
                 .zip(gxy[..n].iter_mut())
@@ -958,7 +960,7 @@ impl Detector {
                     strength: -lambda / per_grey,
                     pixel: pixel as u32,
                     ridge: [t, gk, d1, lambda],
-                    flanks: [flank_px, flank_px + (STEP_DISTANCES - 1) as f32],
+                    flank_px,
                     sigma: sigma_px,
                 });
             }

@@ -245,7 +245,7 @@ mod tests {
             strength,
             pixel: (y * w + x) as u32,
             ridge: [0.0, 1.0, 0.0, -1.0],
-            flanks: [2.0; 2],
+            flank_px: 2.0,
             sigma: 1.0,
         }
     }

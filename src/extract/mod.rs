@@ -28,13 +28,14 @@
 //!    out of its flanks, `2.5 σ` to either side across the line, by twice: the bright
 //!    edge of a wide glow band also reads as a ridge, with the glow on one flank.
 //!    Under water the sheet's glow fills one side of its stripe up to the centre line
-//!    and tilts the ridge towards it (0.1–0.3 px); each point measures that step
-//!    across the line, as a plateau (it must hold twice as far out), and the offset it
-//!    would cause ([`detect::step_shift`]).
+//!    and tilts the ridge towards it (0.1–0.3 px); each point keeps what
+//!    [`detect::step_shift`] needs to take that off.
 //! 3. *Linking* with hysteresis (`low_contrast` to continue, `high_contrast` to start),
-//!    each point moved off the glow step, the step a median over 21 points of its
-//!    chain; fragments shorter than `min_curve_length_px` dropped, points undistorted
-//!    one by one, Douglas–Peucker simplification in undistorted pixel units.
+//!    fragments shorter than `min_curve_length_px` dropped, points undistorted one by
+//!    one, Douglas–Peucker simplification in undistorted pixel units. In the last
+//!    linking of a frame each point is moved off the glow step under it: the step
+//!    measured across the line at four distances, its median over runs of 21 points,
+//!    kept where it is a plateau ([`glow_moves`]).
 //! 4. *Following*: the tiles half a tile and a tile beyond each curve's ends along its
 //!    direction are activated, their points found and everything linked again, for up
 //!    to `MAX_FOLLOW_ROUNDS` (32) rounds while curves grow: a stripe fading below
@@ -723,7 +724,7 @@ fn glow_moves(det: &Detector, chain: &[u32]) -> Vec<f32> {
             .step_by(stride)
             .map(|(p, m)| {
                 let centre = [p.x + m * p.nx, p.y + m * p.ny];
-                det.step_across(centre, [p.nx, p.ny], p.flanks[0])
+                det.step_across(centre, [p.nx, p.ny], p.flank_px)
             })
             .collect();
         let mut column = Vec::with_capacity(n / runs + 1);

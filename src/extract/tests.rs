@@ -1,6 +1,7 @@
 //! Extraction against analytic truth: rendered Gaussian stripes of known centre.
 
 use super::*;
+use crate::simulate::render::normal_cdf;
 
 /// xorshift64* with Box–Muller: fixed seeds, no dependency.
 struct Rng(u64);
@@ -777,28 +778,12 @@ fn bright_edge_of_a_glow_band_is_not_a_stripe() {
     }
 }
 
-/// `erfc` to about 1e-7 (Abramowitz & Stegun 7.1.26).
-fn erfc_approx(x: f64) -> f64 {
-    let z = x.abs();
-    let k = 1.0 / (1.0 + 0.327_591_1 * z);
-    let poly = k
-        * (0.254_829_592
-            + k * (-0.284_496_736
-                + k * (1.421_413_741 + k * (-1.453_152_027 + k * 1.061_405_429))));
-    let e = poly * (-z * z).exp();
-    if x >= 0.0 {
-        e
-    } else {
-        2.0 - e
-    }
-}
-
 /// A Gaussian ridge (peak 60, std 1.06, smoothed at σ 1.3) centred at 0.3 px on a
 /// step of 18 that ends at its centre, blurred as the ridge is: measured at the pixel,
 /// the plain offset is off by 0.3 px, the step's own share taken out gives the centre.
 #[test]
 fn step_shift_recovers_the_centre_of_a_ridge_on_a_step() {
-    use std::f64::consts::{PI, SQRT_2};
+    use std::f64::consts::PI;
     let (a, s, sigma, c) = (60.0f64, 1.06f64, 1.3f64, 0.3f64);
     let big_s = (s * s + sigma * sigma).sqrt();
     for step in [18.0f64, -18.0, 0.0] {
@@ -809,7 +794,7 @@ fn step_shift_recovers_the_centre_of_a_ridge_on_a_step() {
         let r2 = (x * x / big_s.powi(4) - 1.0 / (big_s * big_s)) * ridge;
         let phi = (-0.5 * (x / big_s).powi(2)).exp() / (2.0 * PI).sqrt();
         let below = (-step).max(0.0);
-        let g = ridge + below + step * 0.5 * erfc_approx(-x / big_s / SQRT_2);
+        let g = ridge + below + step * normal_cdf(x / big_s);
         let d1 = r1 + step * phi / big_s;
         let d2 = r2 - step * (x / big_s) * phi / (big_s * big_s);
         let t0 = d1 * g / (d1 * d1 - g * d2);
@@ -875,7 +860,7 @@ fn stripe_on_the_step_of_its_glow_is_centred() {
         // Glow behind the stripe for ratio > 0, ahead for ratio < 0.
         let profile = |d: f64| {
             let x = (d - STRIPE_OFFSET) * ratio.signum();
-            let glow = peak * ratio.abs() * 0.5 * erfc_approx(x / (s * std::f64::consts::SQRT_2));
+            let glow = peak * ratio.abs() * normal_cdf(-x / s);
             peak * (-0.5 * x * x / (s * s)).exp() + glow
         };
         let (m, sd) = mean_std(&errors_across_rotations(&profile, peak / 40.0, seed));

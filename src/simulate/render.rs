@@ -760,7 +760,7 @@ fn inverse_normal_cdf(p: f64) -> f64 {
 
 /// The standard normal distribution function `Φ(u)` (Abramowitz & Stegun 7.1.26,
 /// |error| < 1.5e-7).
-fn normal_cdf(u: f64) -> f64 {
+pub(crate) fn normal_cdf(u: f64) -> f64 {
     let x = u.abs() * std::f64::consts::FRAC_1_SQRT_2;
     let k = 1.0 / (1.0 + 0.327_591_1 * x);
     let poly = k

@@ -47,6 +47,7 @@ pub mod subset;
 pub mod synthetic;
 
 use crate::intersect::Crossing;
+use crate::simulate::scene::mix64;
 use extend::{fit_plane, FitContext};
 use nalgebra::Vector3;
 use serde::Deserialize;
@@ -422,11 +423,7 @@ pub fn robust_global_warm(
         for _round in 0..params.robust_rounds.max(1) {
             let weights: Vec<f64> = candidates
                 .iter()
-                .map(|&k| {
-                    let c = &cr[k];
-                    let g2 = 1.0 / (1.0 + c.u[0] * c.u[0] + c.u[1] * c.u[1]);
-                    g2 * robust_weight[k]
-                })
+                .map(|&k| crossing_weight(&cr[k]) * robust_weight[k])
                 .collect();
             // Bound the weights: two nearly equal planes would dominate.
             let cap = median(weights.iter().copied().filter(|w| *w > 0.0).collect()).unwrap_or(1.0)
@@ -798,10 +795,7 @@ fn focal_jackknife_std(
             .filter(|&k| group(k) != g)
             .collect();
         // The weights of the robust rounds' inliers, without their Cauchy factor.
-        let weights: Vec<f64> = ids
-            .iter()
-            .map(|&k| 1.0 / (1.0 + cr[k].u[0] * cr[k].u[0] + cr[k].u[1] * cr[k].u[1]))
-            .collect();
+        let weights: Vec<f64> = ids.iter().map(|&k| crossing_weight(&cr[k])).collect();
         let nm = nullspace::normal_matrix(n, &subset.local, cr, &ids, &weights);
         let ns = nullspace::null_space(nm).ok()?;
         let (orth, _) =
@@ -816,12 +810,10 @@ fn focal_jackknife_std(
     Some(MAD_TO_SIGMA * mad * ((lambdas.len() - 1) as f64).sqrt())
 }
 
-/// SplitMix64's finaliser: a well-mixed hash of `x`.
-fn mix64(mut x: u64) -> u64 {
-    x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    x ^ (x >> 31)
+/// Weight of a crossing's row in the normal matrix, before any robust factor:
+/// `1 / |u|²` with `u = (x, y, 1)`.
+fn crossing_weight(c: &Crossing) -> f64 {
+    1.0 / (1.0 + c.u[0] * c.u[0] + c.u[1] * c.u[1])
 }
 
 /// Solves the plane of every curve it can (see the module docs for the stages).
