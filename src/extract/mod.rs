@@ -84,6 +84,7 @@
 pub mod background;
 pub mod colour;
 mod detect;
+mod faint;
 mod link;
 pub mod yuyv;
 
@@ -156,6 +157,10 @@ pub struct ExtractParams {
     pub min_value: u8,
     /// Minimum HSV saturation (0–1) for a hue to count; below, a bright pixel is white.
     pub min_saturation: f32,
+    /// Also activate tiles where a stripe too faint for any pixel to reach `min_value`
+    /// runs ([`faint`]: continued ridges of 2×2 block sums, against the noise measured
+    /// on the frame). RGB input only: YUYV extraction converts no tile for it.
+    pub faint_activation: bool,
     /// One or two lasers; a curve's `laser` indexes this list.
     pub lasers: Vec<LaserColour>,
 }
@@ -173,6 +178,7 @@ impl Default for ExtractParams {
             dp_tolerance_px: 0.3,
             max_link_angle_deg: 30.0,
             min_value: colour.min_value,
+            faint_activation: true,
             min_saturation: colour.min_saturation,
             lasers: vec![LaserColour::red(), LaserColour::green()],
         }
@@ -399,6 +405,13 @@ pub struct Extractor {
     stats: ExtractStats,
     /// The background in YUV and the scratch frame of [`Self::extract_yuyv`].
     yuv: Option<yuyv::BackgroundYuv>,
+    /// Scratch of the faint-stripe activation ([`faint`]).
+    faint: faint::FaintRidges,
+    /// Per laser, the channels its light is in ([`LaserColour::channels`]).
+    channels: Vec<[bool; 3]>,
+    /// The frame being extracted came from YUYV: only some tiles hold its pixels, so
+    /// the faint-stripe activation is skipped ([`yuyv`]).
+    yuyv_frame: bool,
 }
 
 impl Extractor {
@@ -437,6 +450,9 @@ impl Extractor {
             linker: Linker::default(),
             stats: ExtractStats::default(),
             yuv: None,
+            faint: faint::FaintRidges::default(),
+            channels: params.lasers.iter().map(LaserColour::channels).collect(),
+            yuyv_frame: false,
         })
     }
 
@@ -628,6 +644,17 @@ impl Extractor {
                     }
                 }
             }
+        }
+        // Stripes too faint for any pixel to reach `min_value`.
+        if self.params.faint_activation && !self.yuyv_frame {
+            self.faint.activate(
+                fr,
+                bg,
+                (w, self.detector.height),
+                (tile, tiles_x),
+                &self.channels,
+                &mut self.active,
+            );
         }
         let (tx_n, ty_n) = (tiles_x, self.detector.tiles_y);
         for active in &mut self.active {

@@ -1,0 +1,351 @@
+//! Activation of tiles by stripes too faint for any single pixel to show them.
+//!
+//! Under water a stripe fades with distance to a peak of a few times the sensor noise.
+//! No pixel of it reaches `min_value`, and a per-pixel test low enough to see it fires
+//! on noise all over the frame (at 3σ, a few pixels in every tile) and on the other
+//! sheet's glow, which lights whole regions by 5–20 grey levels.
+//!
+//! A stripe differs from both by being a *ridge* that *continues*. So the
+//! difference to the background is summed over 4×4 blocks (a quarter of the noise; a
+//! thin stripe across a block keeps about two thirds of its peak), and per
+//! channel a block is a ridge across x when it stands above both blocks two to its left
+//! and right (8 px away, beyond a faint stripe's width) by `RIDGE_SIGMAS` times the
+//! noise of a block sum, and a ridge across y likewise. A ridge counts where the block
+//! rows above and below it (for a ridge across x), or the columns left and right of it
+//! (across y), hold a ridge of the same kind and channel within one block sideways: a
+//! stripe at any angle is a ridge across x or across y, and continues for 12 px. A glow
+//! plateau or its edge is no ridge (one side is as bright), and noise rarely makes
+//! three ridges in a row.
+//!
+//! The noise is measured on the frame itself: the robust spread (median absolute value)
+//! of differences between horizontally neighbouring block sums over every fourth block
+//! row, so a smooth glow does not inflate it and the threshold follows the camera.
+//!
+//! Only the channel in which the block's ridge is highest counts, and it activates the
+//! lasers whose light is in that channel ([`super::LaserColour::channels`]): a bright
+//! green stripe leaks a few per cent into red, far below its ridge in green.
+
+/// A block is a ridge when it rises above both sides by this many times the noise of
+/// a block sum.
+pub const RIDGE_SIGMAS: f32 = 3.0;
+
+/// Pixels per side of a block.
+const BLOCK: usize = 4;
+
+/// Blocks sideways at which a ridge's sides are read (8 px).
+const SIDE_BLOCKS: usize = 2;
+
+/// Smallest ridge height (sum of a block's grey levels) whatever the noise measured:
+/// a clean synthetic frame has none, and quantisation alone leaves ±0.5 per pixel.
+const MIN_RIDGE_SUM: i32 = 4;
+
+/// Scratch of the faint-stripe activation, reused across frames.
+#[derive(Default)]
+pub(super) struct FaintRidges {
+    bw: usize,
+    bh: usize,
+    /// Per channel, per block: the sum of the difference over its 4 pixels.
+    sums: [Vec<i16>; 3],
+    /// Per block: bit `c` = ridge across x in channel `c`, bit `3 + c` = across y.
+    flags: Vec<u8>,
+    row: Vec<i16>,
+    hist: Vec<u32>,
+    /// The last frame's noise of a block sum (grey levels), for the logs and tests.
+    pub noise: f32,
+}
+
+impl FaintRidges {
+    /// Marks in `active[k]` the tiles (of `tile` px, `tiles_x` per row) holding a
+    /// continued ridge in one of laser `k`'s `channels`. `frame` and `background` are
+    /// packed RGB of `width × height`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn activate(
+        &mut self,
+        frame: &[u8],
+        background: &[u8],
+        (width, height): (usize, usize),
+        (tile, tiles_x): (usize, usize),
+        channels: &[[bool; 3]],
+        active: &mut [Vec<bool>],
+    ) {
+        let (bw, bh) = (width / BLOCK, height / BLOCK);
+        if bw < 2 * SIDE_BLOCKS + 1 || bh < 2 * SIDE_BLOCKS + 1 {
+            return;
+        }
+        self.sum_blocks(frame, background, width, bw, bh);
+        let threshold = self.threshold();
+        self.mark_ridges(threshold);
+        // A ridge that continues into the block rows above and below (across x) or the
+        // block columns left and right (across y), within one block sideways.
+        let (flags, bw) = (&self.flags, self.bw);
+        let has = |bx: usize, by: usize, bit: u8| flags[by * bw + bx] & bit != 0;
+        for by in 1..bh - 1 {
+            for bx in 1..bw - 1 {
+                let f = flags[by * bw + bx];
+                if f == 0 {
+                    continue;
+                }
+                for c in 0..3 {
+                    let (x_bit, y_bit) = (1u8 << c, 8u8 << c);
+                    let sideways = |b: usize| b - 1..=b + 1;
+                    let across_x = f & x_bit != 0
+                        && sideways(bx).any(|x| has(x, by - 1, x_bit))
+                        && sideways(bx).any(|x| has(x, by + 1, x_bit));
+                    let across_y = f & y_bit != 0
+                        && sideways(by).any(|y| has(bx - 1, y, y_bit))
+                        && sideways(by).any(|y| has(bx + 1, y, y_bit));
+                    if across_x || across_y {
+                        let t = (BLOCK * by / tile) * tiles_x + BLOCK * bx / tile;
+                        for (k, ch) in channels.iter().enumerate() {
+                            if ch[c] {
+                                active[k][t] = true;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Block sums of the signed difference, per channel: signed, so that the noise is
+    /// the same where the frame is at its background and where a glow lifts it.
+    fn sum_blocks(&mut self, frame: &[u8], background: &[u8], width: usize, bw: usize, bh: usize) {
+        if (self.bw, self.bh) != (bw, bh) {
+            self.bw = bw;
+            self.bh = bh;
+            for s in &mut self.sums {
+                *s = vec![0; bw * bh];
+            }
+            self.flags = vec![0; bw * bh];
+        }
+        self.row.resize(3 * width, 0);
+        let stride = 3 * width;
+        for by in 0..bh {
+            self.row.fill(0);
+            for y in BLOCK * by..BLOCK * (by + 1) {
+                let (f, b) = (
+                    &frame[y * stride..(y + 1) * stride],
+                    &background[y * stride..(y + 1) * stride],
+                );
+                for ((r, f), b) in self.row.iter_mut().zip(f).zip(b) {
+                    *r += i16::from(*f) - i16::from(*b);
+                }
+            }
+            let out = by * bw;
+            for (bx, px) in self.row.chunks_exact(3 * BLOCK).take(bw).enumerate() {
+                let (mut r, mut g, mut b) = (0i16, 0i16, 0i16);
+                for p in px.chunks_exact(3) {
+                    r += p[0];
+                    g += p[1];
+                    b += p[2];
+                }
+                self.sums[0][out + bx] = r;
+                self.sums[1][out + bx] = g;
+                self.sums[2][out + bx] = b;
+            }
+        }
+    }
+
+    /// The ridge height a block must reach: `RIDGE_SIGMAS` times the noise of a block
+    /// sum, from the median absolute difference of horizontal neighbours.
+    fn threshold(&mut self) -> i32 {
+        self.hist.clear();
+        self.hist.resize(1024, 0);
+        let mut n = 0u64;
+        for s in &self.sums {
+            for row in s.chunks_exact(self.bw).step_by(4) {
+                for pair in row.windows(2) {
+                    let d = (i32::from(pair[0]) - i32::from(pair[1])).unsigned_abs() as usize;
+                    self.hist[d.min(1023)] += 1;
+                    n += 1;
+                }
+            }
+        }
+        // Median with linear interpolation inside its bin: the differences are whole
+        // grey levels, and at low noise the median is a bin or two.
+        let half = n as f64 / 2.0;
+        let mut below = 0u64;
+        let mut median = 0.0;
+        for (d, &count) in self.hist.iter().enumerate() {
+            let next = below + u64::from(count);
+            if next as f64 >= half {
+                let frac = if count > 0 {
+                    (half - below as f64) / count as f64
+                } else {
+                    0.0
+                };
+                // Bin d holds |difference| = d; it spans d − 0.5 .. d + 0.5 (0 .. 0.5).
+                median = if d == 0 {
+                    0.5 * frac
+                } else {
+                    d as f64 - 0.5 + frac
+                };
+                break;
+            }
+            below = next;
+        }
+        // MAD of a difference of two sums → σ of one sum.
+        let sigma = 1.4826 * median / std::f64::consts::SQRT_2;
+        self.noise = sigma as f32;
+        ((RIDGE_SIGMAS as f64 * sigma).ceil() as i32).max(MIN_RIDGE_SUM)
+    }
+
+    /// Sets each block's ridge flags: across x and across y, in the channel where its
+    /// ridge is highest. Blocks within `SIDE_BLOCKS` of the border have no two sides
+    /// and are no ridges.
+    fn mark_ridges(&mut self, threshold: i32) {
+        let (bw, bh) = (self.bw, self.bh);
+        let k = SIDE_BLOCKS;
+        self.flags.fill(0);
+        let threshold = threshold.clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16;
+        // Per channel, the ridge heights of one block row (interior columns only).
+        let inner = bw - 2 * k;
+        let mut hx = [vec![0i16; inner], vec![0i16; inner], vec![0i16; inner]];
+        let mut hy = [vec![0i16; inner], vec![0i16; inner], vec![0i16; inner]];
+        for by in k..bh - k {
+            for c in 0..3 {
+                let s = &self.sums[c];
+                let row = &s[by * bw..(by + 1) * bw];
+                let (up, down) = (&s[(by - k) * bw..], &s[(by + k) * bw..]);
+                for (j, (x, y)) in hx[c].iter_mut().zip(hy[c].iter_mut()).enumerate() {
+                    let v = row[j + k];
+                    *x = v.saturating_sub(row[j].max(row[j + 2 * k]));
+                    *y = v.saturating_sub(up[j + k].max(down[j + k]));
+                }
+            }
+            let flags = &mut self.flags[by * bw + k..by * bw + k + inner];
+            for (j, f) in flags.iter_mut().enumerate() {
+                let h = [
+                    hx[0][j].max(hy[0][j]),
+                    hx[1][j].max(hy[1][j]),
+                    hx[2][j].max(hy[2][j]),
+                ];
+                let c = if h[0] >= h[1] && h[0] >= h[2] {
+                    0
+                } else if h[1] >= h[2] {
+                    1
+                } else {
+                    2
+                };
+                *f = u8::from(hx[c][j] >= threshold) << c
+                    | u8::from(hy[c][j] >= threshold) << (3 + c);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A frame of `w × h` over a mid-grey background, with Gaussian noise of `noise`
+    /// grey levels in every channel, plus `add(x, y) → [r, g, b]`.
+    fn frame(
+        w: usize,
+        h: usize,
+        noise: f64,
+        seed: u64,
+        add: impl Fn(f64, f64) -> [f64; 3],
+    ) -> (Vec<u8>, Vec<u8>) {
+        let mut state = seed;
+        let mut gauss = move || {
+            let mut u = || {
+                state = crate::simulate::scene::mix64(state.wrapping_add(0x9e37_79b9_7f4a_7c15));
+                ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+            };
+            let (a, b) = (u(), u());
+            (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
+        };
+        let background = vec![80u8; 3 * w * h];
+        let mut f = background.clone();
+        for y in 0..h {
+            for x in 0..w {
+                let a = add(x as f64, y as f64);
+                for c in 0..3 {
+                    let v = 80.0 + a[c] + noise * gauss();
+                    f[3 * (y * w + x) + c] = v.round().clamp(0.0, 255.0) as u8;
+                }
+            }
+        }
+        (f, background)
+    }
+
+    const RED_GREEN: [[bool; 3]; 2] = [[true, false, false], [false, true, false]];
+
+    fn activate(w: usize, h: usize, f: &[u8], b: &[u8]) -> (Vec<Vec<bool>>, f32) {
+        let tile = 16;
+        let (tx, ty) = (w.div_ceil(tile), h.div_ceil(tile));
+        let mut active = vec![vec![false; tx * ty]; 2];
+        let mut faint = FaintRidges::default();
+        faint.activate(f, b, (w, h), (tile, tx), &RED_GREEN, &mut active);
+        (active, faint.noise)
+    }
+
+    /// A faint red stripe (peak 8 grey levels, 4σ of the noise, FWHM 2.5 px) activates
+    /// the tiles along it at every angle, and only red's.
+    #[test]
+    fn faint_stripe_activates_its_tiles_at_any_angle() {
+        let (w, h) = (256, 256);
+        let s = 2.5 / 2.3548;
+        for (i, deg) in [0.0f64, 20.0, 45.0, 70.0, 90.0, 135.0]
+            .into_iter()
+            .enumerate()
+        {
+            let (sin, cos) = deg.to_radians().sin_cos();
+            let stripe = |x: f64, y: f64| {
+                let d = (x - 128.0) * sin - (y - 128.0) * cos;
+                [8.0 * (-0.5 * d * d / (s * s)).exp(), 0.0, 0.0]
+            };
+            let (f, b) = frame(w, h, 2.0, i as u64 + 1, stripe);
+            let (active, noise) = activate(w, h, &f, &b);
+            // Block sums of 16 pixels of σ = 2: σ 8.
+            assert!((7.0..9.0).contains(&noise), "noise {noise}");
+            // Tiles the line passes through, away from the border.
+            let mut line = vec![false; 256];
+            for step in -200..=200 {
+                let (x, y) = (128.0 + step as f64 * cos, 128.0 + step as f64 * sin);
+                let (tx, ty) = ((x / 16.0).floor() as i64, (y / 16.0).floor() as i64);
+                if (1..15).contains(&tx) && (1..15).contains(&ty) {
+                    line[ty as usize * 16 + tx as usize] = true;
+                }
+            }
+            let on = line.iter().filter(|l| **l).count();
+            let hit = (0..256).filter(|&t| line[t] && active[0][t]).count();
+            assert!(on >= 10, "{deg}°: {on} tiles on the line");
+            assert!(
+                hit * 10 >= on * 8,
+                "{deg}°: {hit} of {on} tiles on the line active"
+            );
+            assert!(!active[1].iter().any(|a| *a), "{deg}°: green activated");
+        }
+    }
+
+    /// Noise alone, and a green glow over half the frame (20 grey levels, a plateau
+    /// with a soft edge), activate next to nothing.
+    #[test]
+    fn noise_and_glow_are_no_ridges() {
+        let (w, h) = (512, 512);
+        let (f, b) = frame(w, h, 2.0, 7, |x, _| {
+            let g = 20.0 * crate::simulate::render::normal_cdf((x - 256.0) / 1.0);
+            [0.0, g, 0.0]
+        });
+        let (active, _) = activate(w, h, &f, &b);
+        let count: usize = active
+            .iter()
+            .map(|a| a.iter().filter(|a| **a).count())
+            .sum();
+        // 1024 tiles per laser.
+        assert!(count <= 4, "{count} tiles activated by noise and glow");
+        // The same noise with the thresholds taken from a noise-free estimate fires
+        // everywhere: the measured noise is what keeps it quiet.
+        let mut faint = FaintRidges::default();
+        let (tx, ty) = (w / 16, h / 16);
+        let mut loud = vec![vec![false; tx * ty]; 2];
+        faint.sum_blocks(&f, &b, w, w / BLOCK, h / BLOCK);
+        faint.mark_ridges(MIN_RIDGE_SUM);
+        let ridges = faint.flags.iter().filter(|f| **f != 0).count();
+        assert!(ridges > 200, "{ridges} ridge blocks at the floor threshold");
+        faint.activate(&f, &b, (w, h), (16, tx), &RED_GREEN, &mut loud);
+        assert!(faint.noise > 7.0, "noise {}", faint.noise);
+    }
+}
