@@ -172,7 +172,7 @@ impl Default for ExtractParams {
             line_width_px: None,
             sigma_px: None,
             high_contrast: 15.0,
-            low_contrast: 10.0,
+            low_contrast: 6.0,
             block_contrast: colour.mask_value as f32,
             min_curve_length_px: 15.0,
             dp_tolerance_px: 0.3,
