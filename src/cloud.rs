@@ -45,7 +45,7 @@ pub struct TriangulateParams {
 impl Default for TriangulateParams {
     fn default() -> Self {
         Self {
-            min_ray_plane_angle_deg: 0.5,
+            min_ray_plane_angle_deg: 0.1,
             max_crossing_disagreement: 0.02,
             min_disagreeing_crossings: 2,
             curve_end_points: 1,
