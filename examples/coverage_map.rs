@@ -1,6 +1,7 @@
 //! Where does a cloud miss the lit area of a simulation? Projects the cloud's points
 //! into the camera and writes `coverage_map.png`: covered lit pixels green, missed
 //! visible ones magenta, missed faint ones dark blue, points outside the lit area grey.
+//! `MIN_CONTRAST=C` shows only the misses where the stripe's peak contrast reached C.
 //! The cloud must be at the truth's scale: pass the scale `compare --truth` printed.
 //!
 //! `CROP=x,y,w,h` also writes that part, twice the size, to `coverage_crop.png`.
@@ -35,9 +36,16 @@ fn main() -> anyhow::Result<()> {
             }
         }
     }
+    // MIN_CONTRAST=C: only misses where the stripe's peak contrast reached C are magenta.
+    let contrast = image::open(Path::new(&args[1]).join("lit.png"))?.to_luma8();
+    let min_contrast: u8 = std::env::var("MIN_CONTRAST")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
     let img = RgbImage::from_fn(cam.width, cam.height, |x, y| {
         let i = y as usize * w + x as usize;
-        Rgb(match (sim.lit[i], sim.visible[i], near[i]) {
+        let shown = sim.visible[i] && contrast.as_raw()[i] >= min_contrast;
+        Rgb(match (sim.lit[i], shown, near[i]) {
             (true, _, true) => [0, 200, 0],
             (true, true, false) => [255, 0, 255],
             (true, false, false) => [50, 50, 140],
@@ -64,7 +72,6 @@ fn main() -> anyhow::Result<()> {
     );
     // Where the misses lie by the stripe's peak contrast (lit.png): visible pixels
     // per contrast band, and the share of them covered.
-    let contrast = image::open(Path::new(&args[1]).join("lit.png"))?.to_luma8();
     println!("peak contrast | visible | covered");
     for (lo, hi) in [
         (0, 15),

@@ -2,7 +2,8 @@
 //! profile of FWHM `W` px, peak `C` grey levels) over a mid-grey background with
 //! Gaussian sensor noise (`NOISE`, default 2), and a green veil of `VEIL` grey levels
 //! (the other sheet's glow under water), and prints for each contrast the share of the
-//! stripe's length with an extracted point within 1 px.
+//! stripe's length with an extracted point within 1 px, and the points found off it
+//! (noise taken for stripes). `PARAMS=low,high[,min_value]` sets the thresholds.
 //!
 //! W=2.5 NOISE=2 VEIL=0 cargo run --release --example faint_stripe -- 6 8 10 12 15 20
 
@@ -24,7 +25,17 @@ fn main() -> anyhow::Result<()> {
     let s = fwhm / 2.3548;
     let cam = Camera::with_fov(w, h, 60f64.to_radians());
     let base = RgbImage::from_pixel(w, h, Rgb([60, 70, 65]));
-    let mut ex = Extractor::new(&ExtractParams::default(), &cam)?;
+    // PARAMS=low,high[,min_value]: the hysteresis thresholds and activation level.
+    let mut params = ExtractParams::default();
+    if let Ok(p) = std::env::var("PARAMS") {
+        let v: Vec<f64> = p.split(',').filter_map(|x| x.parse().ok()).collect();
+        params.low_contrast = v[0] as f32;
+        params.high_contrast = v[1] as f32;
+        if let Some(m) = v.get(2) {
+            params.min_value = *m as u8;
+        }
+    }
+    let mut ex = Extractor::new(&params, &cam)?;
     let bg = Background::from_image(base.clone());
     // Line y = 100 + 0.3 x, from x = 40 to 600.
     let (slope, y0) = (0.3f64, 100.0f64);
@@ -47,6 +58,7 @@ fn main() -> anyhow::Result<()> {
     {
         let mut found = 0usize;
         let mut total = 0usize;
+        let mut false_points = 0usize;
         for trial in 0..10 {
             let img = RgbImage::from_fn(w, h, |x, y| {
                 let (xf, yf) = (x as f64, y as f64);
@@ -72,6 +84,8 @@ fn main() -> anyhow::Result<()> {
                     let yl = y0 + 10.0 * trial as f64 + slope * p[0] as f64;
                     if ((p[1] as f64 - yl) / norm).abs() <= 1.0 {
                         hit[p[0].round().clamp(0.0, w as f32 - 1.0) as usize] = true;
+                    } else {
+                        false_points += 1;
                     }
                 }
             }
@@ -79,7 +93,7 @@ fn main() -> anyhow::Result<()> {
             found += hit[40..600].iter().filter(|h| **h).count();
         }
         println!(
-            "contrast {c:>5}: {:.1} % of the stripe found",
+            "contrast {c:>5}: {:.1} % of the stripe found, {false_points} points off it",
             100.0 * found as f64 / total as f64
         );
     }
