@@ -50,7 +50,7 @@ pub(super) struct FaintRidges {
     flags: Vec<u8>,
     row: Vec<i16>,
     hist: Vec<u32>,
-    /// The last frame's noise of a block sum (grey levels), for the logs and tests.
+    /// The last frame's noise of a block sum (grey levels), measured by `threshold`.
     pub noise: f32,
 }
 
