@@ -32,6 +32,17 @@ pub const RIDGE_SIGMAS: f32 = 3.0;
 /// Pixels per side of a block.
 const BLOCK: usize = 4;
 
+/// Blocks per side of a region whose own noise (or texture) is measured: 64 px.
+const REGION: usize = 16;
+
+/// A region's spread is measured on every this many block rows.
+const REGION_ROW_STEP: usize = 4;
+
+/// Differences of neighbouring block sums are clipped at this many times the frame's
+/// noise before a region's mean is taken, so that a bright stripe through the region
+/// raises its threshold only a little.
+const REGION_CLIP_SIGMAS: f32 = 16.0;
+
 /// Blocks sideways at which a ridge's sides are read (8 px).
 const SIDE_BLOCKS: usize = 2;
 
@@ -50,6 +61,9 @@ pub(super) struct FaintRidges {
     flags: Vec<u8>,
     row: Vec<i16>,
     hist: Vec<u32>,
+    /// Per region of `REGION` × `REGION` blocks, per channel: the ridge height a block
+    /// there must reach.
+    region_threshold: Vec<[i16; 3]>,
     /// The last frame's noise of a block sum (grey levels), measured by `threshold`.
     pub noise: f32,
 }
@@ -74,7 +88,8 @@ impl FaintRidges {
         }
         self.sum_blocks(frame, background, width, bw, bh);
         let threshold = self.threshold();
-        self.mark_ridges(threshold);
+        self.region_thresholds(threshold);
+        self.mark_ridges();
         // A ridge that continues into the block rows above and below (across x) or the
         // block columns left and right (across y), within one block sideways.
         let (flags, bw) = (&self.flags, self.bw);
@@ -107,6 +122,11 @@ impl FaintRidges {
         }
     }
 
+    /// Row `y` of a packed image of `stride` bytes per row.
+    fn row_of(img: &[u8], stride: usize, y: usize) -> &[u8] {
+        &img[y * stride..(y + 1) * stride]
+    }
+
     /// Block sums of the signed difference, per channel: signed, so that the noise is
     /// the same where the frame is at its background and where a glow lifts it.
     fn sum_blocks(&mut self, frame: &[u8], background: &[u8], width: usize, bw: usize, bh: usize) {
@@ -121,15 +141,26 @@ impl FaintRidges {
         self.row.resize(3 * width, 0);
         let stride = 3 * width;
         for by in 0..bh {
-            self.row.fill(0);
-            for y in BLOCK * by..BLOCK * (by + 1) {
-                let (f, b) = (
-                    &frame[y * stride..(y + 1) * stride],
-                    &background[y * stride..(y + 1) * stride],
-                );
-                for ((r, f), b) in self.row.iter_mut().zip(f).zip(b) {
-                    *r += i16::from(*f) - i16::from(*b);
-                }
+            let y = BLOCK * by;
+            let (f0, f1, f2, f3) = (
+                Self::row_of(frame, stride, y),
+                Self::row_of(frame, stride, y + 1),
+                Self::row_of(frame, stride, y + 2),
+                Self::row_of(frame, stride, y + 3),
+            );
+            let (b0, b1, b2, b3) = (
+                Self::row_of(background, stride, y),
+                Self::row_of(background, stride, y + 1),
+                Self::row_of(background, stride, y + 2),
+                Self::row_of(background, stride, y + 3),
+            );
+            // One pass over the block's four rows, all slices of one length: the
+            // compiler vectorises it.
+            let row = &mut self.row[..stride];
+            for i in 0..stride {
+                let f = i16::from(f0[i]) + i16::from(f1[i]) + i16::from(f2[i]) + i16::from(f3[i]);
+                let b = i16::from(b0[i]) + i16::from(b1[i]) + i16::from(b2[i]) + i16::from(b3[i]);
+                row[i] = f - b;
             }
             let out = by * bw;
             for (bx, px) in self.row.chunks_exact(3 * BLOCK).take(bw).enumerate() {
@@ -190,14 +221,56 @@ impl FaintRidges {
         ((RIDGE_SIGMAS as f64 * sigma).ceil() as i32).max(MIN_RIDGE_SUM)
     }
 
+    /// Per region and channel, the larger of the frame's `threshold` and
+    /// `RIDGE_SIGMAS` times the region's own spread of neighbouring block sums (their
+    /// mean absolute difference, clipped): where the other sheet's glow lights a
+    /// textured surface, the texture is a field of ridges, and only a stripe that
+    /// stands out of it counts.
+    fn region_thresholds(&mut self, threshold: i32) {
+        let (bw, bh) = (self.bw, self.bh);
+        let (rx, ry) = (bw.div_ceil(REGION), bh.div_ceil(REGION));
+        let clip = (REGION_CLIP_SIGMAS * self.noise * std::f32::consts::SQRT_2).max(1.0) as u16;
+        // Every `REGION_ROW_STEP`-th block row: 4 rows and 60 differences per channel
+        // and region.
+        let mut sum = vec![[0u32; 3]; rx * ry];
+        for by in (0..bh).step_by(REGION_ROW_STEP) {
+            let region_row = (by / REGION) * rx;
+            for (c, s) in self.sums.iter().enumerate() {
+                let row = &s[by * bw..(by + 1) * bw];
+                for (r, chunk) in row.chunks(REGION).enumerate() {
+                    let total: u32 = chunk
+                        .windows(2)
+                        .map(|p| u32::from(p[0].abs_diff(p[1]).min(clip)))
+                        .sum();
+                    sum[region_row + r][c] += total;
+                }
+            }
+        }
+        self.region_threshold.clear();
+        for (r, sums) in sum.iter().enumerate() {
+            let (x, y) = (r % rx, r / rx);
+            let cols = REGION.min(bw - x * REGION);
+            let rows = (y * REGION..((y + 1) * REGION).min(bh))
+                .filter(|r| r % REGION_ROW_STEP == 0)
+                .count();
+            let n = ((cols - 1) * rows).max(1);
+            self.region_threshold.push(sums.map(|total| {
+                // Mean absolute difference of two sums of σ: 2σ/√π.
+                let sigma = total as f32 / n as f32 * std::f32::consts::PI.sqrt() / 2.0;
+                let local = (RIDGE_SIGMAS * sigma).ceil() as i32;
+                local.max(threshold).min(i32::from(i16::MAX)) as i16
+            }));
+        }
+    }
+
     /// Sets each block's ridge flags: across x and across y, in the channel where its
     /// ridge is highest. Blocks within `SIDE_BLOCKS` of the border have no two sides
     /// and are no ridges.
-    fn mark_ridges(&mut self, threshold: i32) {
+    fn mark_ridges(&mut self) {
         let (bw, bh) = (self.bw, self.bh);
         let k = SIDE_BLOCKS;
+        let regions_x = bw.div_ceil(REGION);
         self.flags.fill(0);
-        let threshold = threshold.clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16;
         // Per channel, the ridge heights of one block row (interior columns only).
         let inner = bw - 2 * k;
         let mut hx = [vec![0i16; inner], vec![0i16; inner], vec![0i16; inner]];
@@ -214,7 +287,9 @@ impl FaintRidges {
                 }
             }
             let flags = &mut self.flags[by * bw + k..by * bw + k + inner];
+            let thresholds = &self.region_threshold[(by / REGION) * regions_x..];
             for (j, f) in flags.iter_mut().enumerate() {
+                let threshold = thresholds[(j + k) / REGION];
                 let h = [
                     hx[0][j].max(hy[0][j]),
                     hx[1][j].max(hy[1][j]),
@@ -227,8 +302,8 @@ impl FaintRidges {
                 } else {
                     2
                 };
-                *f = u8::from(hx[c][j] >= threshold) << c
-                    | u8::from(hy[c][j] >= threshold) << (3 + c);
+                let t = threshold[c];
+                *f = u8::from(hx[c][j] >= t) << c | u8::from(hy[c][j] >= t) << (3 + c);
             }
         }
     }
@@ -336,16 +411,67 @@ mod tests {
             .sum();
         // 1024 tiles per laser.
         assert!(count <= 4, "{count} tiles activated by noise and glow");
-        // The same noise with the thresholds taken from a noise-free estimate fires
-        // everywhere: the measured noise is what keeps it quiet.
+        // The same noise with the thresholds taken from a noise-free estimate is
+        // ridges all over: the measured noise is what keeps it quiet.
         let mut faint = FaintRidges::default();
-        let (tx, ty) = (w / 16, h / 16);
-        let mut loud = vec![vec![false; tx * ty]; 2];
         faint.sum_blocks(&f, &b, w, w / BLOCK, h / BLOCK);
-        faint.mark_ridges(MIN_RIDGE_SUM);
+        faint.noise = 0.0;
+        faint.region_thresholds(MIN_RIDGE_SUM);
+        faint.mark_ridges();
         let ridges = faint.flags.iter().filter(|f| **f != 0).count();
         assert!(ridges > 200, "{ridges} ridge blocks at the floor threshold");
-        faint.activate(&f, &b, (w, h), (16, tx), &RED_GREEN, &mut loud);
-        assert!(faint.noise > 7.0, "noise {}", faint.noise);
+    }
+
+    /// The green sheet's glow on a textured surface (right half: 30 grey levels,
+    /// modulated ±50 % by blobs of ~20 px) is a field of ridges in green; its regions
+    /// raise green's threshold, and a faint red stripe across it is still found.
+    #[test]
+    fn textured_glow_raises_its_regions_threshold() {
+        let (w, h) = (512, 512);
+        let s = 2.5 / 2.3548;
+        let (f, b) = frame(w, h, 2.0, 11, |x, y| {
+            let texture = 1.0 + 0.5 * (x / 3.0).sin() * (y / 4.0).sin();
+            let glow = if x >= 256.0 { 30.0 * texture } else { 0.0 };
+            let d = y - 200.0 - 0.1 * x;
+            [8.0 * (-0.5 * d * d / (s * s)).exp(), glow, 0.0]
+        });
+        let (active, _) = activate(w, h, &f, &b);
+        let tiles = w / 16;
+        let green_right = (0..tiles * tiles)
+            .filter(|t| t % tiles >= tiles / 2 && active[1][*t])
+            .count();
+        assert!(
+            green_right <= 8,
+            "{green_right} of 512 textured tiles active for green"
+        );
+        // The red stripe: tiles it passes through, away from the border.
+        let mut on = 0;
+        let mut hit = 0;
+        for x in (24..488).step_by(16) {
+            let y = 200.0 + 0.1 * x as f64;
+            let t = (y / 16.0) as usize * tiles + x / 16;
+            on += 1;
+            hit += usize::from(active[0][t]);
+        }
+        assert!(
+            hit * 10 >= on * 8,
+            "{hit} of {on} tiles of the red stripe active"
+        );
+        // With the frame's threshold everywhere, the texture activates green widely.
+        let mut faint = FaintRidges::default();
+        faint.sum_blocks(&f, &b, w, w / BLOCK, h / BLOCK);
+        let threshold = faint.threshold();
+        faint.region_thresholds(threshold);
+        faint.region_threshold.fill([threshold as i16; 3]);
+        faint.mark_ridges();
+        let green_ridges = faint
+            .flags
+            .iter()
+            .filter(|f| **f & (1 << 1 | 8 << 1) != 0)
+            .count();
+        assert!(
+            green_ridges > 500,
+            "{green_ridges} green ridge blocks at the frame's threshold"
+        );
     }
 }
