@@ -21,21 +21,43 @@ pub(crate) struct Linker {
     chain: Vec<u32>,
 }
 
+/// The linker's thresholds, in the detector's strength unit (grey levels).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Hysteresis {
+    /// Points weaker than this are never linked.
+    pub low: f32,
+    /// A chain seeded at a point at least this strong is kept.
+    pub high: f32,
+    /// A chain seeded at a weaker point, down to this, is kept when it is at least
+    /// `faint_min_length_px` long: a faint stripe is long, while noise and texture
+    /// that reach past `low` make short chains.
+    pub faint_start: f32,
+    pub faint_min_length_px: f32,
+}
+
 impl Linker {
     /// Calls `emit(chain)` for each linked chain of point indices, in order along the
-    /// line. Seeds need `strength >= high`; points with `strength < low` are never used.
+    /// line. Seeds need `strength >= high`, or `faint_start` for a long chain; points
+    /// with `strength < low` are never used.
     pub fn link(
         &mut self,
         points: &[LinePoint],
         index: &[u32],
         (width, height): (usize, usize),
-        (low, high): (f32, f32),
+        thresholds: Hysteresis,
         max_angle_rad: f32,
         mut emit: impl FnMut(&[u32]),
     ) {
+        let Hysteresis {
+            low,
+            high,
+            faint_start,
+            faint_min_length_px,
+        } = thresholds;
+        let start = faint_start.min(high);
         self.order.clear();
         self.order
-            .extend((0..points.len() as u32).filter(|&i| points[i as usize].strength >= high));
+            .extend((0..points.len() as u32).filter(|&i| points[i as usize].strength >= start));
         self.order.sort_unstable_by(|&a, &b| {
             points[b as usize]
                 .strength
@@ -72,6 +94,19 @@ impl Linker {
             self.chain.extend(self.backward.iter().rev());
             self.chain.push(seed);
             self.chain.extend_from_slice(&self.forward);
+            if p.strength < high {
+                let length: f32 = self
+                    .chain
+                    .windows(2)
+                    .map(|w| {
+                        let (a, b) = (points[w[0] as usize], points[w[1] as usize]);
+                        (a.x - b.x).hypot(a.y - b.y)
+                    })
+                    .sum();
+                if length < faint_min_length_px {
+                    continue;
+                }
+            }
             emit(&self.chain);
         }
     }
@@ -208,6 +243,14 @@ pub fn douglas_peucker(points: &[[f64; 2]], tol: f64) -> Vec<usize> {
 mod tests {
     use super::*;
 
+    /// Seeds at 2, links down to 1; no faint seeds.
+    const HYSTERESIS: Hysteresis = Hysteresis {
+        low: 1.0,
+        high: 2.0,
+        faint_start: 2.0,
+        faint_min_length_px: 0.0,
+    };
+
     #[test]
     fn douglas_peucker_keeps_corners_only() {
         // An L of 21 points: straight, a right-angle corner, straight.
@@ -268,7 +311,7 @@ mod tests {
             add(10 + k, 10 + k, 0.3, 5.0, &mut points);
         }
         let mut chains: Vec<Vec<u32>> = Vec::new();
-        Linker::default().link(&points, &index, (w, h), (1.0, 2.0), 0.9, |c| {
+        Linker::default().link(&points, &index, (w, h), HYSTERESIS, 0.9, |c| {
             chains.push(c.to_vec())
         });
         // The stem stops at the fork; each branch is its own chain.
@@ -295,7 +338,7 @@ mod tests {
             }
         }
         let mut chains: Vec<Vec<u32>> = Vec::new();
-        Linker::default().link(&points, &index, (w, h), (1.0, 2.0), 0.5, |c| {
+        Linker::default().link(&points, &index, (w, h), HYSTERESIS, 0.5, |c| {
             chains.push(c.to_vec())
         });
         // The horizontal line first (strongest), whole and in order.
@@ -306,5 +349,37 @@ mod tests {
         assert_eq!(chains.len(), 3);
         let vertical: usize = chains[1..].iter().map(|c| c.len()).sum();
         assert_eq!(vertical, h - 1);
+    }
+
+    /// A chain that never reaches `high` is kept when it is long enough, and a short
+    /// one is not; a strong chain of any length is.
+    #[test]
+    fn faint_chains_are_kept_only_when_long() {
+        let (w, h) = (100, 12);
+        let mut points = Vec::new();
+        let mut index = vec![NO_POINT; w * h];
+        // Row 2: 80 px at strength 1.5; row 6: 30 px at 1.5; row 10: 5 px at 3.
+        for (row, len, strength) in [(2, 80, 1.5), (6, 30, 1.5), (10, 5, 3.0)] {
+            for x in 0..len {
+                index[row * w + x] = points.len() as u32;
+                points.push(point_at(x, row, w, 0.0, strength));
+            }
+        }
+        let lengths = |faint_start: f32| {
+            let mut lengths: Vec<usize> = Vec::new();
+            let thresholds = Hysteresis {
+                faint_start,
+                faint_min_length_px: 50.0,
+                ..HYSTERESIS
+            };
+            Linker::default().link(&points, &index, (w, h), thresholds, 0.5, |c| {
+                lengths.push(c.len())
+            });
+            lengths.sort_unstable();
+            lengths
+        };
+        assert_eq!(lengths(1.2), vec![5, 80]);
+        // Without faint seeds only the strong chain.
+        assert_eq!(lengths(2.0), vec![5]);
     }
 }

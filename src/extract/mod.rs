@@ -30,7 +30,8 @@
 //!    Under water the sheet's glow fills one side of its stripe up to the centre line
 //!    and tilts the ridge towards it (0.1–0.3 px); each point keeps what
 //!    [`detect::step_shift`] needs to take that off.
-//! 3. *Linking* with hysteresis (`low_contrast` to continue, `high_contrast` to start),
+//! 3. *Linking* with hysteresis (`low_contrast` to continue, `high_contrast` to start,
+//!    or `faint_start_contrast` for a curve at least `faint_min_length_px` long),
 //!    fragments shorter than `min_curve_length_px` dropped, points undistorted one by
 //!    one, Douglas–Peucker simplification in undistorted pixel units. In the last
 //!    linking of a frame each point is moved off the glow step under it: the step
@@ -143,6 +144,10 @@ pub struct ExtractParams {
     pub high_contrast: f32,
     /// A curve continues through points of at least this contrast.
     pub low_contrast: f32,
+    /// A curve may also start at a point of this contrast (below `high_contrast`) when
+    /// it grows at least `faint_min_length_px` long: faint stripes are long.
+    pub faint_start_contrast: f32,
+    pub faint_min_length_px: f64,
     /// A pixel of the other laser's colour blocks a laser from this contrast up (the
     /// other laser's stripe for certain); dimmer ones (its tails, its glow under
     /// water) count as weak for both.
@@ -173,6 +178,8 @@ impl Default for ExtractParams {
             sigma_px: None,
             high_contrast: 15.0,
             low_contrast: 6.0,
+            faint_start_contrast: 10.0,
+            faint_min_length_px: 60.0,
             block_contrast: colour.mask_value as f32,
             min_curve_length_px: 15.0,
             dp_tolerance_px: 0.3,
@@ -230,6 +237,15 @@ impl ExtractParams {
                 format!(
                     "expected 0 <= low_contrast <= high_contrast, got {} and {}",
                     self.low_contrast, self.high_contrast
+                ),
+            );
+        }
+        if !(self.faint_start_contrast >= self.low_contrast && self.faint_min_length_px >= 0.0) {
+            return bad(
+                "faint_start_contrast",
+                format!(
+                    "expected low_contrast <= faint_start_contrast and faint_min_length_px >= 0, got {} (low {}) and {}",
+                    self.faint_start_contrast, self.low_contrast, self.faint_min_length_px
                 ),
             );
         }
@@ -677,7 +693,12 @@ impl Extractor {
             &det.points,
             &det.index,
             (det.width, det.height),
-            (params.low_contrast, params.high_contrast),
+            link::Hysteresis {
+                low: params.low_contrast,
+                high: params.high_contrast,
+                faint_start: params.faint_start_contrast,
+                faint_min_length_px: params.faint_min_length_px as f32,
+            },
             params.max_link_angle_deg.to_radians() as f32,
             |chain| {
                 let mut curve = Curve {
