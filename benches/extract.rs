@@ -99,10 +99,35 @@ fn bench_extract(c: &mut Criterion) {
         .min()
         .unwrap_or_default();
     println!(
-        "wide stripes (FWHM 12 px): {} curves, best of 30: {:.2} ms/frame",
+        "wide stripes (FWHM 12 px): {} curves, best of 30: {:.2} ms/frame, {:?}",
         wide_curves.len(),
-        best_wide.as_secs_f64() * 1e3
+        best_wide.as_secs_f64() * 1e3,
+        extractor.stats()
     );
+    // What the faint-stripe activation costs (it reads every pixel).
+    let mut plain = Extractor::new(
+        &ExtractParams {
+            faint_activation: false,
+            ..ExtractParams::default()
+        },
+        &camera,
+    )
+    .expect("extractor");
+    for (name, img) in [("cross", &frame), ("wide stripes", &wide)] {
+        let best = (0..30)
+            .map(|_| {
+                let t = std::time::Instant::now();
+                std::hint::black_box(plain.extract(img, &background));
+                t.elapsed()
+            })
+            .min()
+            .unwrap_or_default();
+        println!(
+            "{name} without faint activation: best of 30: {:.2} ms/frame, {:?}",
+            best.as_secs_f64() * 1e3,
+            plain.stats()
+        );
+    }
     // CPU time actually spent per frame (Linux), which contention does not inflate.
     if let Some(before) = thread_cpu_nanos() {
         let n = 60;

@@ -5,7 +5,8 @@
 //! pixels magenta, missed faint ones dark blue, extracted points cyan) and the rendered `frame_NNNNNN.png`.
 //!
 //! Environment: `MEDIAN=N` (background from N frames, as reconstruct), `TURBIDITY=T`
-//! and `SEED=S` (as `simulate`), `PARAMS=low,high,min_value[,line_width]`,
+//! and `SEED=S` (as `simulate`), `PARAMS=low,high,min_value[,line_width]`, `FAINT=0`
+//! (no faint-stripe activation),
 //! `CROP=x,y,w,h` (a 3× crop of frame and overlay), `POINTS=x,y,w,h` (curve points
 //! there, with strengths), `PROFILE=y,x0,x1` / `COLUMN=x,y0,y1` (frame − background
 //! along a row / column, beside lit.png).
@@ -54,7 +55,11 @@ fn main() -> anyhow::Result<()> {
         None => Background::from_image(sim.background()),
     };
     // PARAMS=low,high,min_value[,line_width]: other extraction thresholds.
-    let mut params = ExtractParams::default();
+    // FAINT=0: without the faint-stripe activation.
+    let mut params = ExtractParams {
+        faint_activation: std::env::var("FAINT").map_or(true, |v| v != "0"),
+        ..ExtractParams::default()
+    };
     if let Ok(p) = std::env::var("PARAMS") {
         let v: Vec<f64> = p.split(',').filter_map(|x| x.parse().ok()).collect();
         params.low_contrast = v[0] as f32;
