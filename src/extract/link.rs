@@ -7,7 +7,9 @@
 //! taken, provided its direction differs by less than the maximum angle. The trace
 //! stops when no neighbour qualifies, when the best neighbour already belongs to a
 //! curve (a junction: the crossing of two curves), or when the two diagonal neighbours
-//! qualify but the one straight ahead does not (a fork: ambiguous).
+//! qualify but the one straight ahead does not (a fork: ambiguous). Where no neighbour
+//! qualifies, a gap of up to `MAX_GAP_PX` pixels with no linkable point in it is
+//! jumped to a point on the line's course (`bridge`).
 
 use super::detect::{LinePoint, NO_POINT};
 
@@ -174,7 +176,7 @@ fn trace(g: &Grid, start: u32, mut dir: (f32, f32), used: &mut [bool], out: &mut
         if qualified[0] && qualified[2] && !qualified[1] {
             return;
         }
-        let Some((next, _, next_dir)) = best else {
+        let Some((next, _, next_dir)) = best.or_else(|| bridge(g, &p, dir)) else {
             return;
         };
         if used[next as usize] {
@@ -185,6 +187,73 @@ fn trace(g: &Grid, start: u32, mut dir: (f32, f32), used: &mut [bool], out: &mut
         cur = next;
         dir = next_dir;
     }
+}
+
+/// Pixels of missing ridge a trace may jump along its direction.
+pub(crate) const MAX_GAP_PX: isize = 3;
+
+/// Where no neighbour continues the line: the nearest point up to `MAX_GAP_PX` pixels
+/// further along `dir`, within a pixel of the line through `p` and turning by less
+/// than the maximum angle. A faint stripe on a textured surface dips below `low` for
+/// a pixel or two where the surface is dark, and the other laser's stripe where it
+/// crosses blocks a few pixels of it; without this the curve ends there. Noise
+/// fragments joined this way are still short: the extractor measures a curve's length
+/// without its gaps ([`super::Curve::linked_length_px`]).
+fn bridge(g: &Grid, p: &LinePoint, dir: (f32, f32)) -> Option<(u32, f32, (f32, f32))> {
+    let perp = (-dir.1, dir.0);
+    let point_at = |x: f32, y: f32| {
+        let (qx, qy) = (x.round() as isize, y.round() as isize);
+        if qx < 0 || qy < 0 || qx >= g.width as isize || qy >= g.height as isize {
+            return None;
+        }
+        match g.index[qy as usize * g.width + qx as usize] {
+            NO_POINT => None,
+            qi => Some(qi),
+        }
+    };
+    for step in 2..=MAX_GAP_PX + 1 {
+        // Only across a gap: a point strong enough to link in the pixels passed over
+        // is another line (a junction), where the trace stops.
+        let blocked = (-1..=1).any(|side| {
+            let (x, y) = (
+                p.x + (step - 1) as f32 * dir.0 + side as f32 * perp.0,
+                p.y + (step - 1) as f32 * dir.1 + side as f32 * perp.1,
+            );
+            point_at(x, y).is_some_and(|qi| g.points[qi as usize].strength >= g.low)
+        });
+        if blocked {
+            return None;
+        }
+        let mut best: Option<(u32, f32, (f32, f32))> = None;
+        for side in -1..=1 {
+            let (x, y) = (
+                p.x + step as f32 * dir.0 + side as f32 * perp.0,
+                p.y + step as f32 * dir.1 + side as f32 * perp.1,
+            );
+            let Some(qi) = point_at(x, y) else {
+                continue;
+            };
+            let q = g.points[qi as usize];
+            let (dx, dy) = (q.x - p.x, q.y - p.y);
+            let (along, across) = (dx * dir.0 + dy * dir.1, dx * perp.0 + dy * perp.1);
+            let mut qdir = (-q.ny, q.nx);
+            let mut cos = qdir.0 * dir.0 + qdir.1 * dir.1;
+            if cos < 0.0 {
+                qdir = (-qdir.0, -qdir.1);
+                cos = -cos;
+            }
+            if q.strength < g.low || cos < g.cos_max || along < 1.95 || across.abs() > 1.0 {
+                continue;
+            }
+            if best.is_none_or(|(_, a, _)| across.abs() < a) {
+                best = Some((qi, across.abs(), qdir));
+            }
+        }
+        if best.is_some() {
+            return best;
+        }
+    }
+    None
 }
 
 /// Pixel steps of the eight octants, counter-clockwise from +x in image axes
@@ -381,5 +450,32 @@ mod tests {
         assert_eq!(lengths(1.2), vec![5, 80]);
         // Without faint seeds only the strong chain.
         assert_eq!(lengths(2.0), vec![5]);
+    }
+
+    /// A line with a gap of up to `MAX_GAP_PX` pixels is one chain; a longer gap ends
+    /// it.
+    #[test]
+    fn gaps_of_a_few_pixels_are_jumped() {
+        let (w, h) = (60, 5);
+        let chains_with_gap = |gap: usize| {
+            let mut points = Vec::new();
+            let mut index = vec![NO_POINT; w * h];
+            for x in (0..50).filter(|x| !(20..20 + gap).contains(x)) {
+                index[2 * w + x] = points.len() as u32;
+                points.push(point_at(x, 2, w, 0.0, 10.0));
+            }
+            let mut lengths: Vec<usize> = Vec::new();
+            Linker::default().link(&points, &index, (w, h), HYSTERESIS, 0.5, |c| {
+                lengths.push(c.len())
+            });
+            lengths.sort_unstable();
+            lengths
+        };
+        assert_eq!(chains_with_gap(1), vec![49]);
+        assert_eq!(
+            chains_with_gap(MAX_GAP_PX as usize),
+            vec![50 - MAX_GAP_PX as usize]
+        );
+        assert_eq!(chains_with_gap(MAX_GAP_PX as usize + 1), vec![20, 26]);
     }
 }

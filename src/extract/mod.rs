@@ -32,7 +32,8 @@
 //!    [`detect::step_shift`] needs to take that off.
 //! 3. *Linking* with hysteresis (`low_contrast` to continue, `high_contrast` to start,
 //!    or `faint_start_contrast` for a curve at least `faint_min_length_px` long),
-//!    fragments shorter than `min_curve_length_px` dropped, points undistorted one by
+//!    gaps of up to 3 px jumped along the line, fragments with less than
+//!    `min_curve_length_px` of linked ridge dropped, points undistorted one by
 //!    one, Douglas–Peucker simplification in undistorted pixel units. In the last
 //!    linking of a frame each point is moved off the glow step under it: the step
 //!    measured across the line at four distances, its median over runs of 21 points,
@@ -152,7 +153,8 @@ pub struct ExtractParams {
     /// other laser's stripe for certain); dimmer ones (its tails, its glow under
     /// water) count as weak for both.
     pub block_contrast: f32,
-    /// Curves shorter than this (pixels, along the curve) are dropped.
+    /// Curves shorter than this (pixels of linked ridge, gaps jumped not counted) are
+    /// dropped.
     pub min_curve_length_px: f64,
     /// Douglas–Peucker tolerance in undistorted pixels (normalised × focal length).
     pub dp_tolerance_px: f64,
@@ -323,15 +325,27 @@ pub struct Curve {
 impl Curve {
     /// Length along `points_px`, pixels.
     pub fn length_px(&self) -> f64 {
-        self.points_px
-            .windows(2)
-            .map(|w| {
-                let (dx, dy) = ((w[1][0] - w[0][0]) as f64, (w[1][1] - w[0][1]) as f64);
-                dx.hypot(dy)
-            })
-            .sum()
+        self.steps_px().sum()
+    }
+
+    /// Length of the linked ridge (pixels): the length without the gaps the linker
+    /// jumped ([`link::MAX_GAP_PX`]), which no ridge point vouches for.
+    pub fn linked_length_px(&self) -> f64 {
+        self.steps_px().filter(|&d| d < GAP_STEP_PX).sum()
+    }
+
+    fn steps_px(&self) -> impl Iterator<Item = f64> + '_ {
+        self.points_px.windows(2).map(|w| {
+            let (dx, dy) = ((w[1][0] - w[0][0]) as f64, (w[1][1] - w[0][1]) as f64);
+            dx.hypot(dy)
+        })
     }
 }
+
+/// A step between neighbouring points of a curve this long or longer is a jumped gap:
+/// linked neighbours are at most a diagonal pixel apart, give or take their sub-pixel
+/// offsets (up to half a pixel each across the line).
+const GAP_STEP_PX: f64 = 1.95;
 
 /// The curves of one frame as written to disk (see the module doc for the format).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -730,7 +744,7 @@ impl Extractor {
                         curve.strength.push(p.strength);
                     }
                 }
-                if curve.points.len() < 2 || curve.length_px() < params.min_curve_length_px {
+                if curve.points.len() < 2 || curve.linked_length_px() < params.min_curve_length_px {
                     return;
                 }
                 let scaled: Vec<[f64; 2]> = curve
