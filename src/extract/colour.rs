@@ -188,6 +188,11 @@ impl ColourLut {
         }
     }
 
+    /// Per laser, the channels its light is in ([`LaserColour::channels`]).
+    pub fn channels(&self) -> &[[bool; 3]] {
+        &self.channels
+    }
+
     /// Class of a difference whose max channel is at least `min_value`; `None` for a
     /// weak pixel (a stripe tail or noise).
     #[inline]

@@ -20,6 +20,8 @@
 //! The noise is measured on the frame itself: the robust spread (median absolute value)
 //! of differences between horizontally neighbouring block sums over every fourth block
 //! row, so a smooth glow does not inflate it and the threshold follows the camera.
+//! Each region of 64 × 64 px needs more where its own spread is larger: the other
+//! sheet's glow on a textured surface is a field of ridges.
 //!
 //! Only the channel in which the block's ridge is highest counts, and it activates the
 //! lasers whose light is in that channel ([`super::LaserColour::channels`]): a bright
@@ -55,7 +57,7 @@ const MIN_RIDGE_SUM: i32 = 4;
 pub(super) struct FaintRidges {
     bw: usize,
     bh: usize,
-    /// Per channel, per block: the sum of the difference over its 4 pixels.
+    /// Per channel, per block: the sum of the difference over its `BLOCK²` pixels.
     sums: [Vec<i16>; 3],
     /// Per block: bit `c` = ridge across x in channel `c`, bit `3 + c` = across y.
     flags: Vec<u8>,
