@@ -97,15 +97,11 @@ impl Linker {
             self.chain.push(seed);
             self.chain.extend_from_slice(&self.forward);
             if p.strength < high {
-                let length: f32 = self
-                    .chain
-                    .windows(2)
-                    .map(|w| {
-                        let (a, b) = (points[w[0] as usize], points[w[1] as usize]);
-                        (a.x - b.x).hypot(a.y - b.y)
-                    })
-                    .sum();
-                if length < faint_min_length_px {
+                let positions = self.chain.iter().map(|&i| {
+                    let q = points[i as usize];
+                    [q.x, q.y]
+                });
+                if linked_length_px(positions) < f64::from(faint_min_length_px) {
                     continue;
                 }
             }
@@ -192,6 +188,28 @@ fn trace(g: &Grid, start: u32, mut dir: (f32, f32), used: &mut [bool], out: &mut
 /// Pixels of missing ridge a trace may jump along its direction.
 pub(crate) const MAX_GAP_PX: isize = 3;
 
+/// A step between neighbouring points of a chain this long or longer is a jumped gap:
+/// linked neighbours are at most a diagonal pixel apart, give or take their sub-pixel
+/// offsets across the line; a jump starts at 2 px along it.
+const GAP_STEP_PX: f64 = 1.95;
+
+/// Length of the linked ridge through `positions` (pixels, in order along a chain),
+/// without the gaps jumped, which no ridge point vouches for.
+pub(crate) fn linked_length_px(positions: impl Iterator<Item = [f32; 2]>) -> f64 {
+    let mut total = 0.0;
+    let mut last: Option<[f32; 2]> = None;
+    for p in positions {
+        if let Some(q) = last {
+            let d = f64::from(p[0] - q[0]).hypot(f64::from(p[1] - q[1]));
+            if d < GAP_STEP_PX {
+                total += d;
+            }
+        }
+        last = Some(p);
+    }
+    total
+}
+
 /// Where no neighbour continues the line: the nearest point up to `MAX_GAP_PX` pixels
 /// further along `dir`, within a pixel of the line through `p` and turning by less
 /// than the maximum angle. A faint stripe on a textured surface dips below `low` for
@@ -242,7 +260,11 @@ fn bridge(g: &Grid, p: &LinePoint, dir: (f32, f32)) -> Option<(u32, f32, (f32, f
                 qdir = (-qdir.0, -qdir.1);
                 cos = -cos;
             }
-            if q.strength < g.low || cos < g.cos_max || along < 1.95 || across.abs() > 1.0 {
+            if q.strength < g.low
+                || cos < g.cos_max
+                || f64::from(along) < GAP_STEP_PX
+                || across.abs() > 1.0
+            {
                 continue;
             }
             if best.is_none_or(|(_, a, _)| across.abs() < a) {

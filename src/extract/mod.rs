@@ -325,27 +325,21 @@ pub struct Curve {
 impl Curve {
     /// Length along `points_px`, pixels.
     pub fn length_px(&self) -> f64 {
-        self.steps_px().sum()
+        self.points_px
+            .windows(2)
+            .map(|w| {
+                let (dx, dy) = ((w[1][0] - w[0][0]) as f64, (w[1][1] - w[0][1]) as f64);
+                dx.hypot(dy)
+            })
+            .sum()
     }
 
     /// Length of the linked ridge (pixels): the length without the gaps the linker
     /// jumped ([`link::MAX_GAP_PX`]), which no ridge point vouches for.
     pub fn linked_length_px(&self) -> f64 {
-        self.steps_px().filter(|&d| d < GAP_STEP_PX).sum()
-    }
-
-    fn steps_px(&self) -> impl Iterator<Item = f64> + '_ {
-        self.points_px.windows(2).map(|w| {
-            let (dx, dy) = ((w[1][0] - w[0][0]) as f64, (w[1][1] - w[0][1]) as f64);
-            dx.hypot(dy)
-        })
+        link::linked_length_px(self.points_px.iter().copied())
     }
 }
-
-/// A step between neighbouring points of a curve this long or longer is a jumped gap:
-/// linked neighbours are at most a diagonal pixel apart, give or take their sub-pixel
-/// offsets (up to half a pixel each across the line).
-const GAP_STEP_PX: f64 = 1.95;
 
 /// The curves of one frame as written to disk (see the module doc for the format).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -437,8 +431,6 @@ pub struct Extractor {
     yuv: Option<yuyv::BackgroundYuv>,
     /// Scratch of the faint-stripe activation ([`faint`]).
     faint: faint::FaintRidges,
-    /// Per laser, the channels its light is in ([`LaserColour::channels`]).
-    channels: Vec<[bool; 3]>,
     /// The frame being extracted came from YUYV: only some tiles hold its pixels, so
     /// the faint-stripe activation is skipped ([`yuyv`]).
     yuyv_frame: bool,
@@ -481,7 +473,6 @@ impl Extractor {
             stats: ExtractStats::default(),
             yuv: None,
             faint: faint::FaintRidges::default(),
-            channels: params.lasers.iter().map(LaserColour::channels).collect(),
             yuyv_frame: false,
         })
     }
@@ -682,7 +673,7 @@ impl Extractor {
                 bg,
                 (w, self.detector.height),
                 (tile, tiles_x),
-                &self.channels,
+                self.lut.channels(),
                 &mut self.active,
             );
         }
