@@ -757,6 +757,9 @@ pub fn reconstruct_curves(
             if let Some(warning) = solve::orthogonality_warning(sol.orthogonality_rms_deg) {
                 tracing::warn!("{warning}");
             }
+            if let Some(warning) = solve::focal_warning(sol.focal_scale, sol.focal_scale_std) {
+                tracing::warn!("{warning}");
+            }
             sol
         }
         PlaneSource::Known(known) => Solution {

@@ -111,6 +111,8 @@ pub struct Incremental {
     solution: Option<EpochSolution>,
     pending: Option<(Receiver<Result<Solution, SolveError>>, usize)>,
     next_solve_at: usize,
+    /// The last epoch's focal estimate was too uncertain (warned once when it turns so).
+    focal_uncertain: bool,
     pub counts: SolverCounts,
 }
 
@@ -143,6 +145,7 @@ impl Incremental {
             epoch: 0,
             solution: None,
             pending: None,
+            focal_uncertain: false,
             counts: SolverCounts::default(),
         }
     }
@@ -293,6 +296,11 @@ impl Incremental {
             }
         }
         self.counts.orthogonality_rms_deg = sol.orthogonality_rms_deg;
+        let focal_warning = crate::solve::focal_warning(sol.focal_scale, sol.focal_scale_std);
+        if let (Some(warning), false) = (&focal_warning, self.focal_uncertain) {
+            tracing::warn!(epoch = self.epoch + 1, "{warning}");
+        }
+        self.focal_uncertain = focal_warning.is_some();
         self.solution = Some(EpochSolution {
             planes_given,
             ctx,

@@ -289,6 +289,21 @@ pub fn orthogonality_warning(rms_deg: f64) -> Option<String> {
     })
 }
 
+/// Above this standard deviation of an estimated focal scale the cloud cannot be
+/// trusted to 2 %: twice the deviation is then over 1 % of the focal length, which
+/// alone moves points at the image's edge by several pixels and tilts the planes.
+pub const SUSPECT_FOCAL_SCALE_STD: f64 = 0.005;
+
+/// What to tell the user when the focal scale was estimated (`std` is its standard
+/// deviation) and is too uncertain for a cloud good to 2 %.
+pub fn focal_warning(scale: f64, std: Option<f64>) -> Option<String> {
+    let std = std.filter(|s| *s > SUSPECT_FOCAL_SCALE_STD)?;
+    Some(format!(
+        "the focal length estimated from the crosses is uncertain: scale {scale:.4} ±          {std:.4} (±{:.1} %), so the cloud may be off by a few per cent; calibrate the          camera in the water, or scan with more crosses at different angles",
+        100.0 * std
+    ))
+}
+
 pub(crate) fn median(mut x: Vec<f64>) -> Option<f64> {
     if x.is_empty() {
         return None;

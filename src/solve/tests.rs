@@ -508,6 +508,16 @@ fn loosely_fixed_planes_are_the_worst_ones() {
 }
 
 #[test]
+fn an_uncertain_focal_estimate_is_warned_about() {
+    // Not estimated, or within the bound: silent.
+    assert_eq!(focal_warning(1.0, None), None);
+    assert_eq!(focal_warning(0.9985, Some(0.0035)), None);
+    // The turbid benchmark's estimate: ±1 %.
+    let w = focal_warning(0.9920, Some(0.0103)).expect("a warning at ±1 %");
+    assert!(w.contains("±1.0 %") && w.contains("0.9920"), "{w}");
+}
+
+#[test]
 fn crosses_far_from_orthogonal_are_reported() {
     assert_eq!(orthogonality_warning(0.05), None);
     assert_eq!(orthogonality_warning(SUSPECT_ORTHOGONALITY_DEG), None);
