@@ -435,4 +435,71 @@ mod tests {
         assert!(converted < tiles, "{converted} of {tiles} tiles converted");
         followed
     }
+
+    /// No ridge pixel is detected twice, whatever the follow rounds and the
+    /// faint-stripe activation add, and no curve point is in two curves. Once seen
+    /// (two curves sharing a tail, on a YUYV-decoded frame) with an early version of
+    /// the faint activation; kept as a check over the three scenes' frames decoded
+    /// from YUYV, as a camera delivers them, with every stage on.
+    #[test]
+    fn no_ridge_pixel_is_detected_twice() {
+        let mut doubled = Vec::new();
+        for (scene, turbidity) in [("pipes", Some(1.5)), ("bricks", None), ("room", None)] {
+            let mut spec = builtin_scene(scene)
+                .expect("scene")
+                .with_resolution(480, 270);
+            if let Some(t) = turbidity {
+                spec.water.turbidity = t;
+                spec.medium = crate::simulate::Medium::Water;
+            }
+            let sim = Simulator::new(
+                &spec,
+                &SimParams {
+                    seed: 4,
+                    ..SimParams::default()
+                },
+            )
+            .expect("simulator");
+            let camera = sim.camera().clone();
+            let header = DumpHeader {
+                fourcc: *b"YUYV",
+                width: camera.width,
+                height: camera.height,
+                bytes_per_line: 2 * camera.width,
+                interval_num: 1,
+                interval_den: 30,
+                device: "test".into(),
+                card: "test".into(),
+            };
+            let background = Background::from_image(
+                decode_rgb(&header, &yuyv_of(&sim.background())).expect("bg"),
+            );
+            let mut ex = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
+            let mut curves_seen = 0;
+            for i in (0..300).step_by(13) {
+                let (frame, _) = sim.render_frame(i);
+                let rgb = decode_rgb(&header, &yuyv_of(&frame)).expect("decode");
+                let curves = ex.extract(&rgb, &background);
+                curves_seen += curves.len();
+                let mut points: Vec<(u32, u32)> = curves
+                    .iter()
+                    .flat_map(|c| c.points_px.iter().map(|p| (p[0].to_bits(), p[1].to_bits())))
+                    .collect();
+                let mut pixels: Vec<u32> = ex.detector.points.iter().map(|p| p.pixel).collect();
+                let (n_points, n_pixels) = (points.len(), pixels.len());
+                points.sort_unstable();
+                points.dedup();
+                pixels.sort_unstable();
+                pixels.dedup();
+                if points.len() != n_points || pixels.len() != n_pixels {
+                    doubled.push((scene, i, n_points - points.len(), n_pixels - pixels.len()));
+                }
+            }
+            assert!(curves_seen >= 20, "{scene}: {curves_seen} curves");
+        }
+        assert!(
+            doubled.is_empty(),
+            "(scene, frame, points, pixels) doubled: {doubled:?}"
+        );
+    }
 }
