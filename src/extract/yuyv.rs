@@ -372,9 +372,10 @@ mod tests {
         assert!(right > 400.0, "the curve ends at x = {right}");
     }
 
-    /// Extracts `frames` of a scene both ways, asserts equal curves, and returns the
-    /// tiles the extraction activated by following curves.
-    fn yuyv_equals_whole(scene: &str, turbidity: Option<f64>, frames: &[usize]) -> usize {
+    /// A built-in scene at 480x270 (seed 4; water of `turbidity` when given), the
+    /// header of a YUYV dump of it, and its background as the camera sees it: through
+    /// YUYV too.
+    fn yuyv_scene(scene: &str, turbidity: Option<f64>) -> (Simulator, DumpHeader, Background) {
         let mut spec = builtin_scene(scene)
             .expect("scene")
             .with_resolution(480, 270);
@@ -390,7 +391,7 @@ mod tests {
             },
         )
         .expect("simulator");
-        let camera = sim.camera().clone();
+        let camera = sim.camera();
         let header = DumpHeader {
             fourcc: *b"YUYV",
             width: camera.width,
@@ -404,6 +405,14 @@ mod tests {
         // The background as the camera sees it: through YUYV too.
         let bg_yuyv = yuyv_of(&sim.background());
         let background = Background::from_image(decode_rgb(&header, &bg_yuyv).expect("bg"));
+        (sim, header, background)
+    }
+
+    /// Extracts `frames` of a scene both ways, asserts equal curves, and returns the
+    /// tiles the extraction activated by following curves.
+    fn yuyv_equals_whole(scene: &str, turbidity: Option<f64>, frames: &[usize]) -> usize {
+        let (sim, header, background) = yuyv_scene(scene, turbidity);
+        let camera = sim.camera().clone();
         // YUYV extraction skips the faint-stripe activation (see the module doc).
         let params = ExtractParams {
             faint_activation: false,
@@ -445,35 +454,8 @@ mod tests {
     fn no_ridge_pixel_is_detected_twice() {
         let mut doubled = Vec::new();
         for (scene, turbidity) in [("pipes", Some(1.5)), ("bricks", None), ("room", None)] {
-            let mut spec = builtin_scene(scene)
-                .expect("scene")
-                .with_resolution(480, 270);
-            if let Some(t) = turbidity {
-                spec.water.turbidity = t;
-                spec.medium = crate::simulate::Medium::Water;
-            }
-            let sim = Simulator::new(
-                &spec,
-                &SimParams {
-                    seed: 4,
-                    ..SimParams::default()
-                },
-            )
-            .expect("simulator");
+            let (sim, header, background) = yuyv_scene(scene, turbidity);
             let camera = sim.camera().clone();
-            let header = DumpHeader {
-                fourcc: *b"YUYV",
-                width: camera.width,
-                height: camera.height,
-                bytes_per_line: 2 * camera.width,
-                interval_num: 1,
-                interval_den: 30,
-                device: "test".into(),
-                card: "test".into(),
-            };
-            let background = Background::from_image(
-                decode_rgb(&header, &yuyv_of(&sim.background())).expect("bg"),
-            );
             let mut ex = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
             let mut curves_seen = 0;
             for i in (0..300).step_by(13) {
