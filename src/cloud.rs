@@ -36,6 +36,11 @@ pub struct TriangulateParams {
     /// A curve is left out when at least this many of its crossings disagree and they
     /// outnumber those that agree.
     pub min_disagreeing_crossings: u32,
+    /// A disagreement between two kept curves is blamed on the weaker ridge at the
+    /// crossing when the other is more than this many times as strong there; closer
+    /// strengths leave the blame to how often each curve agrees. 0 never looks at
+    /// strength.
+    pub blame_strength_ratio: f64,
     /// Points left out at each end of every curve: where a stripe ends (an occlusion,
     /// the edge of a surface, the other laser's stripe) the detector's window mixes
     /// the stripe with what lies beyond, and its last point is the worst localised.
@@ -48,6 +53,7 @@ impl Default for TriangulateParams {
             min_ray_plane_angle_deg: 0.1,
             max_crossing_disagreement: 0.02,
             min_disagreeing_crossings: 2,
+            blame_strength_ratio: 1.5,
             curve_end_points: 1,
         }
     }
@@ -81,13 +87,15 @@ impl TriangulateStats {
 
 /// A crossing of two curves (ids into the caller's list of curves) at the undistorted
 /// normalised image point `u`, which is near point `at[0]` of curve `a` and point
-/// `at[1]` of curve `b`.
+/// `at[1]` of curve `b`, where their ridges are `strength[0]` and `strength[1]` strong
+/// (0 where not known).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CurveCrossing {
     pub a: u32,
     pub b: u32,
     pub u: [f64; 2],
     pub at: [u32; 2],
+    pub strength: [f32; 2],
 }
 
 /// What [`check_crossings`] found: curves to leave out whole, and for the others the
@@ -140,9 +148,16 @@ impl CrossingCheck {
 }
 
 /// [`inconsistent_curves`], then, among the curves kept, each remaining disagreement
-/// blamed on the curve whose crossings agree less often (both on a tie), so that a curve
-/// that runs off the surface part of the way (into the glow of its sheet) loses that
-/// stretch and keeps the rest.
+/// blamed on one of the two, so that a curve that runs off the surface part of the way
+/// (into the glow of its sheet) loses that stretch and keeps the rest. The blame goes to
+/// the weaker ridge at the crossing when the other is more than
+/// `blame_strength_ratio` times as strong: a stripe on a surface is sharp, the glow of a
+/// sheet in the water or a reflection is dim. Otherwise it goes to the curve whose
+/// crossings agree less often (both on a tie).
+///
+/// On the pipes recording, of the disagreements where exactly one of the two curves
+/// was off the surface at the crossing, the weaker ridge was the one off in 90 %; how
+/// often the curves agree picked it in 66 %.
 pub fn check_crossings(
     planes: &[Option<Vector3<f64>>],
     crossings: &[CurveCrossing],
@@ -178,8 +193,14 @@ pub fn check_crossings(
     let mut marks: Vec<Vec<(u32, bool)>> = vec![Vec::new(); n];
     for &(c, ok) in &judged {
         let (a, b) = (c.a as usize, c.b as usize);
+        let [sa, sb] = c.strength.map(f64::from);
+        let ratio = params.blame_strength_ratio;
         let (blame_a, blame_b) = if ok {
             (false, false)
+        } else if ratio > 0.0 && sb > ratio * sa {
+            (true, false)
+        } else if ratio > 0.0 && sa > ratio * sb {
+            (false, true)
         } else if less(a, b) {
             (true, false)
         } else if less(b, a) {
@@ -198,7 +219,7 @@ pub fn check_crossings(
 
 /// Whether two solved planes agree about the depth at the crossing `u` (a point behind
 /// the camera disagrees).
-fn agrees(va: Vector3<f64>, vb: Vector3<f64>, u: [f64; 2], params: &TriangulateParams) -> bool {
+pub fn agrees(va: Vector3<f64>, vb: Vector3<f64>, u: [f64; 2], params: &TriangulateParams) -> bool {
     let u = Vector3::new(u[0], u[1], 1.0);
     let (da, db) = (va.dot(&u), vb.dot(&u));
     da > 0.0 && db > 0.0 && 2.0 * (da - db).abs() <= params.max_crossing_disagreement * (da + db)
@@ -542,6 +563,7 @@ mod tests {
             b,
             u: [x, -(d.z + d.x * x) / d.y],
             at: [0, 0],
+            strength: [0.0; 2],
         }
     }
 
@@ -573,6 +595,7 @@ mod tests {
                 b: 6,
                 u: [0.0, 0.0],
                 at: [0, 0],
+                strength: [0.0; 2],
             });
         }
         let params = TriangulateParams::default();
@@ -598,6 +621,44 @@ mod tests {
             .filter(|c| c.b != 5 || c.a == 0)
             .collect();
         assert!(!inconsistent_curves(&planes, &few, &[], &params).contains(&true));
+    }
+
+    /// A disagreement costs the weaker ridge at the crossing its stretch when the other
+    /// is clearly stronger there, though the weaker curve agrees more often elsewhere;
+    /// with strengths close together, the curve that agrees less often loses it.
+    #[test]
+    fn a_disagreement_is_blamed_on_the_clearly_weaker_ridge() {
+        let planes: Vec<Option<Vector3<f64>>> = (0..5)
+            .map(|i| {
+                let t = i as f64 * 0.3;
+                Some(Vector3::new(t.cos() * 0.4, t.sin() * 0.4, 1.0))
+            })
+            .collect();
+        // Curve 0 agrees with 2; curve 1 with 2, 3 and 4; 0 and 1 disagree at point 50
+        // of each.
+        let mut crossings = vec![
+            agreeing(&planes, 0, 2, -0.1),
+            agreeing(&planes, 1, 2, 0.0),
+            agreeing(&planes, 1, 3, 0.1),
+            agreeing(&planes, 1, 4, 0.2),
+        ];
+        for (c, at) in crossings.iter_mut().zip([10, 10, 90, 95]) {
+            c.at = [at, 0];
+        }
+        let mut bad = agreeing(&planes, 0, 1, 0.05);
+        bad.u[1] += 0.3;
+        bad.at = [50, 50];
+        let blamed = |strength: [f32; 2]| {
+            let mut all = crossings.clone();
+            all.push(CurveCrossing { strength, ..bad });
+            let check = check_crossings(&planes, &all, &[], &TriangulateParams::default());
+            assert!(!check.rejected.contains(&true), "{check:?}");
+            [!check.keeps(0, 50), !check.keeps(1, 50)]
+        };
+        assert_eq!(blamed([0.0, 0.0]), [true, false]);
+        assert_eq!(blamed([100.0, 80.0]), [true, false]);
+        assert_eq!(blamed([100.0, 20.0]), [false, true]);
+        assert_eq!(blamed([20.0, 100.0]), [true, false]);
     }
 
     #[test]

@@ -590,14 +590,29 @@ pub fn reconstruct_curves(
         let (p, local) = (curve_plane[cid as usize], curve_local[cid as usize]);
         planes[p as usize].nearest_point(local as usize, u)
     };
+    // The ridge strength of curve `cid` at its point `at`.
+    let local_strength = |cid: u32, at: u32| {
+        let (p, local) = (curve_plane[cid as usize], curve_local[cid as usize]);
+        planes[p as usize].curves[local as usize]
+            .strength
+            .get(at as usize)
+            .copied()
+    };
     let curve_crossings: Vec<cloud::CurveCrossing> = crossings
         .par_iter()
         .zip(&curve_ids)
-        .map(|(c, &[a, b])| cloud::CurveCrossing {
-            a,
-            b,
-            u: c.u,
-            at: [at(a, c.u), at(b, c.u)],
+        .map(|(c, &[a, b])| {
+            let at = [at(a, c.u), at(b, c.u)];
+            cloud::CurveCrossing {
+                a,
+                b,
+                u: c.u,
+                at,
+                strength: [
+                    local_strength(a, at[0]).unwrap_or(0.0),
+                    local_strength(b, at[1]).unwrap_or(0.0),
+                ],
+            }
         })
         .collect();
     // The self-calibration sees only the crossings of strong curves (faint ones, with
@@ -611,14 +626,6 @@ pub fn reconstruct_curves(
         .flat_map(|p| &p.curves)
         .map(|c| is_faint(c, min_strength))
         .collect();
-    let local_strength = |cid: u32, at: u32| {
-        let (p, local) = (curve_plane[cid as usize], curve_local[cid as usize]);
-        planes[p as usize].curves[local as usize]
-            .strength
-            .get(at as usize)
-            .copied()
-            .unwrap_or(f32::INFINITY)
-    };
     let min_local = config.solve.min_crossing_strength;
     // Indices into `crossings` of the strong ones.
     let strong_idx: Vec<usize> = curve_crossings
@@ -627,8 +634,8 @@ pub fn reconstruct_curves(
         .filter(|(_, cc)| {
             !faint[cc.a as usize]
                 && !faint[cc.b as usize]
-                && local_strength(cc.a, cc.at[0]) >= min_local
-                && local_strength(cc.b, cc.at[1]) >= min_local
+                && local_strength(cc.a, cc.at[0]).is_none_or(|s| s >= min_local)
+                && local_strength(cc.b, cc.at[1]).is_none_or(|s| s >= min_local)
         })
         .map(|(k, _)| k)
         .collect();
