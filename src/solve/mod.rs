@@ -644,7 +644,21 @@ pub fn extend_and_refine(
             }
             let known = gather(c, planes);
             let partner = partner_plane(c, planes);
-            if let Some(fit) = fit_plane(cr, &known, partner, ctx, planes[c]) {
+            let warm = fit_plane(cr, &known, partner, ctx, planes[c]);
+            // A plane first fitted from a few of its crossings (its other curves' partners
+            // not yet solved) may hold on to that turn and call the rest outliers: where a
+            // fit leaves outliers, a fresh consensus start over all crossings is tried too
+            // and kept when it agrees with more of them.
+            let fit = match warm {
+                Some(w) if !w.outliers.is_empty() => {
+                    match fit_plane(cr, &known, partner, ctx, None) {
+                        Some(fresh) if fresh.inliers > w.inliers => Some(fresh),
+                        _ => Some(w),
+                    }
+                }
+                other => other,
+            };
+            if let Some(fit) = fit {
                 planes[c] = Some(fit.plane);
                 if round + 1 == refine_rounds {
                     rejected_crossings.extend(fit.outliers.iter().copied());

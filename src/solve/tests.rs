@@ -430,15 +430,36 @@ fn refitting_the_shift_on_all_crosses_undoes_a_common_shift() {
 
 /// On noisy crossings, the extended planes dropped as too loosely fixed are among the
 /// ones the solve gets worst: with the drop switched off, their median plane error is
-/// above the kept planes' median (the covariance takes the neighbours as exact, so it
-/// ranks planes only roughly).
+/// above the kept planes' median, over three scans (the covariance takes the
+/// neighbours as exact, so it ranks planes only roughly; one scan drops about four).
 #[test]
 fn loosely_fixed_planes_are_the_worst_ones() {
+    // Pooled over three scans: each drops only a handful.
+    let (mut kept, mut lost) = (Vec::new(), Vec::new());
+    for seed in [7, 8, 9] {
+        let (k, l) = kept_and_dropped_plane_errors(seed);
+        kept.extend(k);
+        lost.extend(l);
+    }
+    assert!(!lost.is_empty(), "nothing was dropped");
+    kept.sort_by(f64::total_cmp);
+    lost.sort_by(f64::total_cmp);
+    let median_kept = kept[kept.len() / 2];
+    let median_lost = lost[lost.len() / 2];
+    assert!(
+        median_lost > median_kept,
+        "dropped {lost:?}, kept median {median_kept}"
+    );
+}
+
+/// The plane errors (after the global scale, with the drop switched off) of the
+/// extended planes a noisy scan keeps and of those it drops as too loosely fixed.
+fn kept_and_dropped_plane_errors(seed: u64) -> (Vec<f64>, Vec<f64>) {
     let sphere = SphereScene::default();
     let (planes, partner) = random_sphere_scan(
         &ScanSpec {
             num_crosses: 60,
-            seed: 7,
+            seed,
             ..ScanSpec::default()
         },
         &sphere,
@@ -474,8 +495,6 @@ fn loosely_fixed_planes_are_the_worst_ones() {
     .expect("solvable");
     assert_eq!(kept_all.uncertain_planes, 0);
     let sol = solve(&problem, &base).expect("solvable");
-    assert!(sol.uncertain_planes > 0, "nothing was dropped");
-    // Errors of the planes solved without the drop, after the global scale.
     let (k, _, _) = plane_error(&kept_all, &planes);
     let error = |c: usize| {
         let v = kept_all.planes[c].expect("solved");
@@ -484,27 +503,13 @@ fn loosely_fixed_planes_are_the_worst_ones() {
     let both: Vec<usize> = (0..planes.len())
         .filter(|&c| kept_all.planes[c].is_some())
         .collect();
-    let dropped: Vec<usize> = both
-        .iter()
-        .copied()
-        .filter(|&c| sol.planes[c].is_none())
-        .collect();
-    assert_eq!(dropped.len(), sol.uncertain_planes);
-    let mut kept: Vec<f64> = both
-        .iter()
-        .copied()
-        .filter(|&c| sol.planes[c].is_some())
-        .map(error)
-        .collect();
-    kept.sort_by(f64::total_cmp);
-    let median_kept = kept[kept.len() / 2];
-    let mut lost: Vec<f64> = dropped.iter().map(|&c| error(c)).collect();
-    lost.sort_by(f64::total_cmp);
-    let median_lost = lost[lost.len() / 2];
-    assert!(
-        median_lost > median_kept,
-        "dropped {lost:?}, kept median {median_kept}"
-    );
+    let (lost, kept): (Vec<usize>, Vec<usize>) =
+        both.iter().partition(|&&c| sol.planes[c].is_none());
+    assert_eq!(lost.len(), sol.uncertain_planes);
+    (
+        kept.into_iter().map(error).collect(),
+        lost.into_iter().map(error).collect(),
+    )
 }
 
 #[test]
