@@ -286,6 +286,163 @@ pub struct Reconstruction {
     pub planes: Vec<Option<Vector3<f64>>>,
 }
 
+/// A plane whose curves the crossing check leaves out, in whole or in part, may be the
+/// one at fault: fitted from some of its curves' crossings only, it can be turned about
+/// the 3D line through them and miss its other curves by a few percent, while those
+/// curves are on the surface. Each such plane is refitted afresh (consensus start) from
+/// the strong crossings of all its curves with the solved curves the check keeps, and
+/// the refit is kept when more of those crossings agree with it
+/// (`max_crossing_disagreement`) than with the plane it replaces. Returns the number of
+/// planes refitted.
+#[allow(clippy::too_many_arguments)]
+fn rescue_disputed_planes(
+    sol: &mut Solution,
+    crossings: &[Crossing],
+    curve_ids: &[[u32; 2]],
+    curve_plane: &[u32],
+    strong_idx: &[usize],
+    curve_crossings: &[cloud::CurveCrossing],
+    faint: &[bool],
+    params: &cloud::TriangulateParams,
+) -> usize {
+    let Some(ctx) = sol.fit_context else {
+        return 0;
+    };
+    let given = sol.given_planes();
+    let curve_planes: Vec<Option<Vector3<f64>>> = curve_plane
+        .iter()
+        .map(|&p| given.get(p as usize).copied().flatten())
+        .collect();
+    let check = cloud::check_crossings(&curve_planes, curve_crossings, faint, params);
+    // Per plane, its strong crossings with kept curves of other solved planes:
+    // (crossing index, the other plane).
+    let mut known: Vec<Vec<(usize, Vector3<f64>)>> = vec![Vec::new(); given.len()];
+    let mut disputed = vec![false; given.len()];
+    for &k in strong_idx {
+        let c = &crossings[k];
+        if c.sin_angle < ctx.min_sin_angle {
+            continue;
+        }
+        let [ca, cb] = curve_ids[k];
+        for (mine, other, p, q) in [(ca, cb, c.a, c.b), (cb, ca, c.b, c.a)] {
+            disputed[p as usize] |= check.rejected[mine as usize] || check.partial(mine as usize);
+            if check.rejected[other as usize] {
+                continue;
+            }
+            if let Some(vq) = given.get(q as usize).copied().flatten() {
+                known[p as usize].push((k, vq));
+            }
+        }
+    }
+    let agreeing = |v: &Vector3<f64>, known: &[(usize, Vector3<f64>)]| {
+        known
+            .iter()
+            .filter(|(k, vq)| cloud::agrees(*v, *vq, crossings[*k].u, params))
+            .count()
+    };
+    let lambda = sol.focal_scale;
+    let mut rescued = 0;
+    for p in 0..given.len() {
+        let Some(old) = given[p] else { continue };
+        if !disputed[p] || known[p].len() < ctx.min_crossings.max(3) {
+            continue;
+        }
+        let Some(v) = most_agreeing_plane(crossings, &known[p], params.max_crossing_disagreement)
+        else {
+            continue;
+        };
+        if agreeing(&v, &known[p]) > agreeing(&old, &known[p]) {
+            sol.planes[p] = Some(Vector3::new(v.x * lambda, v.y * lambda, v.z));
+            rescued += 1;
+        }
+    }
+    rescued
+}
+
+/// The plane that the most of the crossings `known` (crossing index, the other curve's
+/// plane) agree with, each giving the inverse depth `v_q · u` at its `u`: the best of
+/// minimal samples of three (all of them for a few crossings, a fixed pseudo-random
+/// set otherwise) by the number agreeing within `tolerance` (relative depth), refitted
+/// by least squares on those. `None` when no sample is well conditioned.
+fn most_agreeing_plane(
+    crossings: &[Crossing],
+    known: &[(usize, Vector3<f64>)],
+    tolerance: f64,
+) -> Option<Vector3<f64>> {
+    const TRIALS: usize = 256;
+    let rows: Vec<(Vector3<f64>, f64)> = known
+        .iter()
+        .map(|(k, vq)| {
+            let u = Vector3::new(crossings[*k].u[0], crossings[*k].u[1], 1.0);
+            (u, vq.dot(&u))
+        })
+        .filter(|(_, d)| *d > 0.0)
+        .collect();
+    let n = rows.len();
+    if n < 3 {
+        return None;
+    }
+    let agrees = |v: &Vector3<f64>, (u, d): &(Vector3<f64>, f64)| {
+        let e = v.dot(u);
+        e > 0.0 && 2.0 * (e - d).abs() <= tolerance * (e + d)
+    };
+    let fit = |idx: &mut dyn Iterator<Item = usize>| -> Option<Vector3<f64>> {
+        let (mut a, mut b) = (nalgebra::Matrix3::zeros(), Vector3::zeros());
+        for i in idx {
+            let (u, d) = &rows[i];
+            let w = 1.0 / (d * d);
+            a += u * u.transpose() * w;
+            b += u * (d * w);
+        }
+        let eig = nalgebra::SymmetricEigen::new(a);
+        let (lo, hi) = eig
+            .eigenvalues
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(lo, hi), &l| {
+                (lo.min(l), hi.max(l))
+            });
+        (lo > 1e-9 * hi).then(|| a.cholesky().map(|c| c.solve(&b)))?
+    };
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = |m: usize| {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        ((state >> 33) % m as u64) as usize
+    };
+    let mut best: Option<(usize, Vector3<f64>)> = None;
+    let all_triples = n * (n - 1) * (n - 2) / 6 <= TRIALS;
+    let mut triples = Vec::new();
+    if all_triples {
+        for i in 0..n {
+            for j in i + 1..n {
+                for k in j + 1..n {
+                    triples.push([i, j, k]);
+                }
+            }
+        }
+    } else {
+        while triples.len() < TRIALS {
+            let t = [next(n), next(n), next(n)];
+            if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
+                triples.push(t);
+            }
+        }
+    }
+    for t in triples {
+        let Some(v) = fit(&mut t.into_iter()) else {
+            continue;
+        };
+        let count = rows.iter().filter(|r| agrees(&v, r)).count();
+        if best.is_none_or(|(c, _)| count > c) {
+            best = Some((count, v));
+        }
+    }
+    let (_, v) = best?;
+    let inliers: Vec<usize> = (0..n).filter(|&i| agrees(&v, &rows[i])).collect();
+    fit(&mut inliers.into_iter()).or(Some(v))
+}
+
 /// Whether no point of `curve` reaches `min_strength` (curves read without strengths
 /// count as strong).
 pub(crate) fn is_faint(curve: &Curve, min_strength: f32) -> bool {
@@ -761,6 +918,17 @@ pub fn reconstruct_curves(
             );
             faint_planes = extended + filled;
             tracing::debug!(extended, filled, "planes from faint crossings");
+            let rescued = rescue_disputed_planes(
+                &mut sol,
+                &crossings,
+                &curve_ids,
+                &curve_plane,
+                &strong_idx,
+                &curve_crossings,
+                &faint,
+                &config.triangulate,
+            );
+            tracing::debug!(rescued, "planes refitted where their curves were disputed");
             if let Some(warning) = solve::orthogonality_warning(sol.orthogonality_rms_deg) {
                 tracing::warn!("{warning}");
             }
@@ -925,6 +1093,136 @@ mod tests {
             polyline: points.clone(),
             points,
         }
+    }
+
+    /// Plane 0 has two curves, on two walls; the others each have one curve per wall and
+    /// cross its curves where the planes meet on that wall. A plane 0 turned about its
+    /// line on the first wall misses the second wall's crossings by percents
+    /// (fitted from the first wall's crossings alone, as a re-solve can leave it); the
+    /// rescue refits it from all of them. A right plane is left as it is.
+    #[test]
+    fn a_plane_turned_about_one_of_its_curves_is_refitted_from_all_of_them() {
+        let walls = [Vector3::new(0.0, 0.0, 0.5), Vector3::new(0.0, 0.5, 0.45)];
+        let planes: Vec<Vector3<f64>> = (0..7)
+            .map(|i| {
+                let t = i as f64 * 0.45;
+                Vector3::new(1.2 * t.cos(), 1.2 * t.sin(), 0.2 + 0.05 * i as f64)
+            })
+            .collect();
+        // Curves: plane 0 on wall 0 and wall 1, then planes 1..7 on wall 0 and wall 1.
+        let mut curve_plane = vec![0u32, 0];
+        let mut curve_wall = vec![0usize, 1];
+        for p in 1..7u32 {
+            curve_plane.extend([p, p]);
+            curve_wall.extend([0, 1]);
+        }
+        let (mut crossings, mut curve_ids, mut curve_crossings) = (vec![], vec![], vec![]);
+        for a in 0..curve_plane.len() {
+            for b in a + 1..curve_plane.len() {
+                let (pa, pb) = (curve_plane[a] as usize, curve_plane[b] as usize);
+                if pa == pb || curve_wall[a] != curve_wall[b] {
+                    continue;
+                }
+                let s = walls[curve_wall[a]];
+                let u = (planes[pa] - s).cross(&(planes[pb] - s));
+                let u = [u.x / u.z, u.y / u.z];
+                crossings.push(Crossing {
+                    a: pa as u32,
+                    b: pb as u32,
+                    u,
+                    sin_angle: 1.0,
+                });
+                curve_ids.push([a as u32, b as u32]);
+                curve_crossings.push(cloud::CurveCrossing {
+                    a: a as u32,
+                    b: b as u32,
+                    u,
+                    at: [0, 0],
+                    strength: [100.0; 2],
+                });
+            }
+        }
+        let turned = planes[0] + 0.5 * (planes[0] - walls[0]);
+        let ctx = crate::solve::extend::FitContext {
+            focal_scale: 1.0,
+            sigma_img: 1e-6,
+            sigma_ortho: 1e-3,
+            outlier_k: 4.0,
+            min_crossings: 3,
+            min_bend: 1e-3,
+            min_sample_spread: 0.0,
+            max_depth_sigma: f64::INFINITY,
+            min_sin_angle: 0.1,
+        };
+        let solution = |p0: Vector3<f64>| Solution {
+            planes: std::iter::once(Some(p0))
+                .chain(planes[1..].iter().map(|v| Some(*v)))
+                .collect(),
+            fit_context: Some(ctx),
+            ..Solution::empty()
+        };
+        let strong: Vec<usize> = (0..crossings.len()).collect();
+        let faint = vec![false; curve_plane.len()];
+        let params = cloud::TriangulateParams::default();
+        let rescue = |sol: &mut Solution| {
+            rescue_disputed_planes(
+                sol,
+                &crossings,
+                &curve_ids,
+                &curve_plane,
+                &strong,
+                &curve_crossings,
+                &faint,
+                &params,
+            )
+        };
+        // The turned plane holds on the first wall and misses the second by 2-50 %.
+        let mut sol = solution(turned);
+        let planes_of_curves: Vec<_> = curve_plane
+            .iter()
+            .map(|&p| sol.planes[p as usize])
+            .collect();
+        let check = cloud::check_crossings(&planes_of_curves, &curve_crossings, &faint, &params);
+        assert!(!check.rejected[0] && check.rejected[1], "{check:?}");
+        assert_eq!(rescue(&mut sol), 1);
+        let v = sol.planes[0].expect("solved");
+        assert!(
+            (v - planes[0]).norm() < 1e-9 * planes[0].norm(),
+            "{v} vs {}",
+            planes[0]
+        );
+        // Right planes are not touched.
+        let mut sol = solution(planes[0]);
+        assert_eq!(rescue(&mut sol), 0);
+        assert_eq!(sol.planes[0], Some(planes[0]));
+    }
+
+    /// The plane most crossings agree with, against a minority from another plane.
+    #[test]
+    fn the_most_agreeing_plane_outvotes_a_minority() {
+        let truth = Vector3::new(0.4, -0.3, 0.8);
+        let other = Vector3::new(0.1, 0.5, 1.1);
+        let mut crossings = Vec::new();
+        let mut known = Vec::new();
+        for i in 0..20 {
+            let t = i as f64;
+            let u = [0.3 * (0.7 * t).sin(), 0.25 * (1.3 * t).cos()];
+            let uu = Vector3::new(u[0], u[1], 1.0);
+            // The other curve's plane gives the inverse depth of `truth` (or, for every
+            // third crossing, of `other`) at `u`.
+            let target = if i % 3 == 0 { other } else { truth };
+            let d = target.dot(&uu);
+            crossings.push(Crossing {
+                a: 0,
+                b: 1,
+                u,
+                sin_angle: 1.0,
+            });
+            known.push((i, Vector3::new(0.0, 0.0, d)));
+        }
+        let v = most_agreeing_plane(&crossings, &known, 0.02).expect("plane");
+        assert!((v - truth).norm() < 1e-9, "{v}");
+        assert_eq!(most_agreeing_plane(&crossings, &known[..2], 0.02), None);
     }
 
     /// The consensus re-solve is kept unless it fits clearly worse than the first: a
