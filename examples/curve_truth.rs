@@ -13,6 +13,9 @@
 //! splits into extraction, off-surface curves, unsolved planes and the rest; and the
 //! signed depth error of the strong points on their true planes, per laser.
 //!
+//! With `MISSING=1` (and `CLOUD`), it also lists the planes that have points on the
+//! surface but none in the cloud, most points first.
+//!
 //! cargo run --release --example curve_truth -- target/bench-accuracy/sim-turbid-300 [config.toml]
 
 use crossline::compare::GroundTruth;
@@ -48,6 +51,7 @@ fn main() -> anyhow::Result<()> {
         )
         .collect();
     let strong = config.solve.min_curve_strength;
+    let strong_min = strong;
     // Relative depth error of a point on plane `v` against the scene; `None` where
     // the plane puts it behind the camera or its ray meets no surface.
     let error_on = |v: &Vector3<f64>, p: &[f64; 2]| -> Option<f64> {
@@ -102,6 +106,47 @@ fn main() -> anyhow::Result<()> {
         }
         Err(_) => None,
     };
+    if let (Some(sv), Ok(_)) = (solved.as_ref(), std::env::var("MISSING")) {
+        let mut miss: Vec<(usize, usize, u8, usize)> = Vec::new();
+        for (f, curves) in per_frame.iter().enumerate() {
+            let Some(truth) = sim.truth.frames.get(f) else {
+                continue;
+            };
+            for l in 0..2u8 {
+                if sv.contains(&(f as u32, l)) {
+                    continue;
+                }
+                let v = Vector3::from(truth.planes[l as usize]);
+                let (mut on, mut strong) = (0, 0);
+                for c in curves.iter().filter(|c| c.laser == l) {
+                    on += c
+                        .points
+                        .iter()
+                        .filter(|p| error_on(&v, p).is_some_and(|r| r.abs() <= 0.02))
+                        .count();
+                    strong += usize::from(
+                        c.strength.iter().cloned().fold(0.0f32, f32::max) >= strong_min,
+                    );
+                }
+                if on > 0 {
+                    miss.push((on, f, l, strong));
+                }
+            }
+        }
+        miss.sort_unstable_by(|a, b| b.cmp(a));
+        let total: usize = miss.iter().map(|m| m.0).sum();
+        println!(
+            "planes missing from the cloud with points on the surface: {} ({} points)",
+            miss.len(),
+            total
+        );
+        for m in miss.iter().take(40) {
+            println!(
+                "  frame {} laser {}: {} points on the surface, {} strong curves",
+                m.1, m.2, m.0, m.3
+            );
+        }
+    }
     let mut near = [vec![false; w * h], vec![false; w * h], vec![false; w * h]];
     for (f, curves) in per_frame.iter().enumerate() {
         let Some(truth) = sim.truth.frames.get(f) else {

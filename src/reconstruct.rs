@@ -289,18 +289,18 @@ pub struct Reconstruction {
 /// A plane whose curves the crossing check leaves out, in whole or in part, may be the
 /// one at fault: fitted from some of its curves' crossings only, it can be turned about
 /// the 3D line through them and miss its other curves by a few percent, while those
-/// curves are on the surface. Each such plane is refitted afresh (consensus start) from
-/// the strong crossings of all its curves with the solved curves the check keeps, and
-/// the refit is kept when more of those crossings agree with it
-/// (`max_crossing_disagreement`) than with the plane it replaces. Returns the number of
-/// planes refitted.
+/// curves are on the surface. Each such plane is refitted from the crossings of all its
+/// curves with the solved curves the check keeps, faint ones included (far along a
+/// sheet, where a plane fitted from the strong curves near its start is extrapolated,
+/// they are the ones that tell), and the refit is kept when more of those crossings
+/// agree with it (`max_crossing_disagreement`) than with the plane it replaces.
+/// Returns the number of planes refitted.
 #[allow(clippy::too_many_arguments)]
 fn rescue_disputed_planes(
     sol: &mut Solution,
     crossings: &[Crossing],
     curve_ids: &[[u32; 2]],
     curve_plane: &[u32],
-    strong_idx: &[usize],
     curve_crossings: &[cloud::CurveCrossing],
     faint: &[bool],
     params: &cloud::TriangulateParams,
@@ -314,12 +314,11 @@ fn rescue_disputed_planes(
         .map(|&p| given.get(p as usize).copied().flatten())
         .collect();
     let check = cloud::check_crossings(&curve_planes, curve_crossings, faint, params);
-    // Per plane, its strong crossings with kept curves of other solved planes:
+    // Per plane, its crossings with kept curves of other solved planes:
     // (crossing index, the other plane).
     let mut known: Vec<Vec<(usize, Vector3<f64>)>> = vec![Vec::new(); given.len()];
     let mut disputed = vec![false; given.len()];
-    for &k in strong_idx {
-        let c = &crossings[k];
+    for (k, c) in crossings.iter().enumerate() {
         if c.sin_angle < ctx.min_sin_angle {
             continue;
         }
@@ -923,7 +922,6 @@ pub fn reconstruct_curves(
                 &crossings,
                 &curve_ids,
                 &curve_plane,
-                &strong_idx,
                 &curve_crossings,
                 &faint,
                 &config.triangulate,
@@ -1161,7 +1159,6 @@ mod tests {
             fit_context: Some(ctx),
             ..Solution::empty()
         };
-        let strong: Vec<usize> = (0..crossings.len()).collect();
         let faint = vec![false; curve_plane.len()];
         let params = cloud::TriangulateParams::default();
         let rescue = |sol: &mut Solution| {
@@ -1170,7 +1167,6 @@ mod tests {
                 &crossings,
                 &curve_ids,
                 &curve_plane,
-                &strong,
                 &curve_crossings,
                 &faint,
                 &params,
