@@ -32,7 +32,18 @@
 pub const RIDGE_SIGMAS: f32 = 3.0;
 
 /// Pixels per side of a block.
-const BLOCK: usize = 4;
+pub(super) const BLOCK: usize = 4;
+
+/// Blocks per side of a cell whose darkening is measured ([`FaintRidges::darkening`]).
+pub(super) const DARK_CELL: usize = 8;
+
+/// A darkened cell is lifted only when the robust spread of its 4×4-block means about
+/// their median is at most this (grey levels): lifted, the spread is what is left.
+const LIFT_MAX_SPREAD: f32 = 3.0;
+
+/// Cells whose mean lies less than this far below the background (grey levels) are
+/// not lifted: noise alone puts half of them below it.
+const LIFT_MIN: f32 = 2.0;
 
 /// Blocks per side of a region whose own noise (or texture) is measured: 64 px.
 const REGION: usize = 16;
@@ -122,6 +133,55 @@ impl FaintRidges {
                 }
             }
         }
+    }
+
+    /// Per cell of `DARK_CELL` × `DARK_CELL` blocks (32 px), per channel: how far the
+    /// frame lies evenly below its background there, into `out` (cells in rows of
+    /// `(bw + DARK_CELL − 1) / DARK_CELL`, returned). That is the median of the cell's
+    /// block means when the cell's mean is at least `LIFT_MIN` below and the blocks'
+    /// robust spread about the median is at most `LIFT_MAX_SPREAD`; 0 otherwise. Empty
+    /// before the first [`Self::activate`].
+    pub fn darkening(&self, out: &mut Vec<[u8; 3]>) -> usize {
+        let (bw, bh) = (self.bw, self.bh);
+        let (cx, cy) = (bw.div_ceil(DARK_CELL), bh.div_ceil(DARK_CELL));
+        out.clear();
+        out.resize(cx * cy, [0; 3]);
+        let mut vals: Vec<i16> = Vec::with_capacity(DARK_CELL * DARK_CELL);
+        for cyi in 0..cy {
+            for cxi in 0..cx {
+                for (c, sums) in self.sums.iter().enumerate() {
+                    vals.clear();
+                    for by in DARK_CELL * cyi..(DARK_CELL * (cyi + 1)).min(bh) {
+                        let row = &sums[by * bw..(by + 1) * bw];
+                        vals.extend_from_slice(
+                            &row[DARK_CELL * cxi..(DARK_CELL * (cxi + 1)).min(bw)],
+                        );
+                    }
+                    // Most cells are not darkened: their mean tells at once.
+                    let sum: i32 = vals.iter().map(|&v| i32::from(v)).sum();
+                    let px = (BLOCK * BLOCK) as f32;
+                    if vals.is_empty() || (sum as f32) > -LIFT_MIN * px * vals.len() as f32 {
+                        continue;
+                    }
+                    let mid = vals.len() / 2;
+                    let m = *vals.select_nth_unstable(mid).1;
+                    if m >= 0 {
+                        continue;
+                    }
+                    // Only an even darkening: a textured surface darkened would, lifted,
+                    // be a field of ridges as high as its spread.
+                    for v in vals.iter_mut() {
+                        *v = (*v - m).abs();
+                    }
+                    let mad = *vals.select_nth_unstable(mid).1;
+                    if 1.4826 * f32::from(mad) / px > LIFT_MAX_SPREAD {
+                        continue;
+                    }
+                    out[cyi * cx + cxi][c] = (-f32::from(m) / px).round().clamp(0.0, 255.0) as u8;
+                }
+            }
+        }
+        cx
     }
 
     /// Row `y` of a packed image of `stride` bytes per row.

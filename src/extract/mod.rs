@@ -20,7 +20,10 @@
 //!    in the other laser's channels it neither hides nor fakes `k`'s faint stripe. A
 //!    pixel of a hue no laser has counts for `k` (activation and response) when its
 //!    light outside `k`'s channels is under `block_contrast`: a faint red stripe on the
-//!    green sheet's veil reads orange.
+//!    green sheet's veil reads orange. Where the frame lies evenly below its background
+//!    over a 32 px cell (`lift_darkened`: the other sheet's glow was in the background
+//!    there, not in this frame), the response is taken from the frame lifted by that
+//!    much.
 //! 2. *Ridges* (per laser, active tiles only): separable Gaussian derivatives, the
 //!    Hessian, its eigenvector across the line, the second-order Taylor offset
 //!    `t = −(n·∇g)/λ` that must stay in the pixel (`|t·n| ≤ 0.5` in both axes), for
@@ -168,6 +171,14 @@ pub struct ExtractParams {
     /// runs ([`faint`]: continued ridges of 2×2 block sums, against the noise measured
     /// on the frame). RGB input only: YUYV extraction converts no tile for it.
     pub faint_activation: bool,
+    /// Where the frame lies below its background over a 32 px cell (under water, the
+    /// other sheet's glow lit that place in most of the background's frames but not in
+    /// this one), take the response from the frame lifted by that much
+    /// ([`faint::FaintRidges::darkening`]): a stripe there rises above its dark
+    /// surroundings, not above the background, and the positive part of the
+    /// difference would keep only the little it rises above the background. Needs
+    /// `faint_activation` (it measures the cells); RGB input only.
+    pub lift_darkened: bool,
     /// One or two lasers; a curve's `laser` indexes this list.
     pub lasers: Vec<LaserColour>,
 }
@@ -188,6 +199,7 @@ impl Default for ExtractParams {
             max_link_angle_deg: 30.0,
             min_value: colour.min_value,
             faint_activation: true,
+            lift_darkened: true,
             min_saturation: colour.min_saturation,
             lasers: vec![LaserColour::red(), LaserColour::green()],
         }
@@ -431,6 +443,9 @@ pub struct Extractor {
     yuv: Option<yuyv::BackgroundYuv>,
     /// Scratch of the faint-stripe activation ([`faint`]).
     faint: faint::FaintRidges,
+    /// How far the frame lies below its background, per cell
+    /// ([`faint::FaintRidges::darkening`]).
+    dark: DarkCells,
     /// The frame being extracted came from YUYV: only some tiles hold its pixels, so
     /// the faint-stripe activation is skipped ([`yuyv`]).
     yuyv_frame: bool,
@@ -473,6 +488,7 @@ impl Extractor {
             stats: ExtractStats::default(),
             yuv: None,
             faint: faint::FaintRidges::default(),
+            dark: DarkCells::default(),
             yuyv_frame: false,
         })
     }
@@ -531,7 +547,7 @@ impl Extractor {
         for laser in 0..self.params.lasers.len() {
             self.detector.prepare(
                 &self.active[laser],
-                &mut response_rgb(&self.lut, laser as u8, src.frame(), background),
+                &mut response_rgb(&self.lut, laser as u8, src.frame(), background, &self.dark),
             );
             self.detector
                 .detect(&self.active[laser], self.params.low_contrast);
@@ -547,7 +563,7 @@ impl Extractor {
                 src.ensure(&self.grown, self.detector.tiles_x, self.detector.tiles_y);
                 self.detector.extend(
                     &self.grown,
-                    &mut response_rgb(&self.lut, laser as u8, src.frame(), background),
+                    &mut response_rgb(&self.lut, laser as u8, src.frame(), background, &self.dark),
                 );
                 self.detector
                     .detect_more(&self.grown, self.params.low_contrast);
@@ -676,6 +692,13 @@ impl Extractor {
                 self.lut.channels(),
                 &mut self.active,
             );
+            if self.params.lift_darkened {
+                self.dark.cells_x = self.faint.darkening(&mut self.dark.lift);
+            } else {
+                self.dark.lift.clear();
+            }
+        } else {
+            self.dark.lift.clear();
         }
         let (tx_n, ty_n) = (tiles_x, self.detector.tiles_y);
         for active in &mut self.active {
@@ -909,35 +932,65 @@ impl TileFrame for WholeFrame<'_> {
     fn ensure(&mut self, _: &[bool], _: usize, _: usize) {}
 }
 
+/// Per cell of `faint::BLOCK · faint::DARK_CELL` px (`cells_x` per row), per channel:
+/// the grey levels the frame is lifted by before the background is subtracted; empty
+/// for no lift.
+#[derive(Default)]
+struct DarkCells {
+    lift: Vec<[u8; 3]>,
+    cells_x: usize,
+}
+
 /// The RGB input's response filler for [`Detector::prepare`]: laser `laser`'s response
-/// to the positive part of `frame − background`, and the other-laser mask. Another input
+/// to the positive part of `frame − background`, the frame lifted per cell by `dark`,
+/// and the other-laser mask. Another input
 /// format (YUYV) needs its own filler and activation pass; the rest is shared.
 fn response_rgb<'a>(
     lut: &'a ColourLut,
     laser: u8,
     frame: &'a RgbImage,
     background: &'a RgbImage,
+    dark: &'a DarkCells,
 ) -> impl FnMut(usize, usize, &mut [f32], &mut [u8]) + 'a {
     let width = frame.width() as usize;
     let (fr, bg) = (frame.as_raw(), background.as_raw());
+    const CELL_PX: usize = faint::BLOCK * faint::DARK_CELL;
+    let (dark, cells_x) = (&dark.lift[..], dark.cells_x);
     move |y, x0, row, masked| {
         let start = 3 * (y * width + x0);
         let f = &fr[start..start + 3 * row.len()];
         let b = &bg[start..start + 3 * row.len()];
-        for (((o, m), f), b) in row
-            .iter_mut()
-            .zip(masked.iter_mut())
-            .zip(f.chunks_exact(3))
-            .zip(b.chunks_exact(3))
-        {
-            let (dr, dg, db) = (
-                f[0].saturating_sub(b[0]),
-                f[1].saturating_sub(b[1]),
-                f[2].saturating_sub(b[2]),
-            );
-            let (r, other_laser) = lut.response(laser, dr, dg, db);
-            *m = u8::from(other_laser);
-            *o = r as f32;
+        let cell_row = (y / CELL_PX) * cells_x;
+        // Cell by cell, so the inner loop has one lift.
+        let mut i = 0;
+        while i < row.len() {
+            let (lift, end) = if dark.is_empty() {
+                ([0; 3], row.len())
+            } else {
+                let cx = ((x0 + i) / CELL_PX).min(cells_x - 1);
+                let end = if cx + 1 == cells_x {
+                    row.len()
+                } else {
+                    ((cx + 1) * CELL_PX - x0).min(row.len())
+                };
+                (dark.get(cell_row + cx).copied().unwrap_or([0; 3]), end)
+            };
+            for (((o, m), f), b) in row[i..end]
+                .iter_mut()
+                .zip(masked[i..end].iter_mut())
+                .zip(f[3 * i..3 * end].chunks_exact(3))
+                .zip(b[3 * i..3 * end].chunks_exact(3))
+            {
+                let (dr, dg, db) = (
+                    f[0].saturating_add(lift[0]).saturating_sub(b[0]),
+                    f[1].saturating_add(lift[1]).saturating_sub(b[1]),
+                    f[2].saturating_add(lift[2]).saturating_sub(b[2]),
+                );
+                let (r, other_laser) = lut.response(laser, dr, dg, db);
+                *m = u8::from(other_laser);
+                *o = r as f32;
+            }
+            i = end;
         }
     }
 }

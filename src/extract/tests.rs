@@ -887,3 +887,63 @@ fn narrow_neighbour_is_not_taken_for_a_glow_step() {
         "bias {m:.4} px, std {sd:.4} px"
     );
 }
+
+/// Under water the median background holds the other sheet's glow where it lit most
+/// frames; in a frame without it there, a stripe rises above its darker surroundings
+/// but barely above the background. With `lift_darkened` the response is taken from
+/// the frame lifted by the cell's darkening and the stripe is found; without, the
+/// positive part of the difference keeps 4 of its 24 grey levels and nothing is. A
+/// darkened texture with no stripe gives no curve either way.
+#[test]
+fn stripe_on_a_region_darker_than_its_background_is_found() {
+    let (w, h) = (256u32, 128u32);
+    let s = 1.3;
+    let camera = Camera::with_fov(w, h, 1.0);
+    let glow = |_: f64, _: f64| [40.0, 60.0, 40.0];
+    let unlit = flat(40.0);
+    let mut rng = Rng(5);
+    let background = Background::from_image(render(w, h, &glow, &[], 1.0, &mut rng));
+    let theta: f64 = 0.2;
+    let (nx, ny) = (theta.cos(), theta.sin());
+    let dist = move |x: f64, y: f64| (x - 128.3) * nx + (y - 64.0) * ny;
+    let stripe = Stripe {
+        rgb: [0.0, 1.0, 0.0],
+        peak: 24.0,
+        s,
+        distance: &dist,
+    };
+    let frame = render(w, h, &unlit, &[stripe], 1.0, &mut rng);
+    let lifted = params_for(s, "red-green");
+    assert!(lifted.lift_darkened);
+    let plain = ExtractParams {
+        lift_darkened: false,
+        ..lifted.clone()
+    };
+    let on_stripe = |params: &ExtractParams| {
+        let mut ex = Extractor::new(params, &camera).expect("extractor");
+        let curves = ex.extract(&frame, &background);
+        let e = errors(&curves, w, h, 0.0, &dist);
+        assert!(
+            e.iter().all(|d| d.abs() < 0.5),
+            "a point off the stripe: {e:?}"
+        );
+        e.len()
+    };
+    // The stripe crosses the frame's 128 rows, about 130 px.
+    let found = on_stripe(&lifted);
+    assert!(found >= 100, "{found} points with the lift");
+    let lost = on_stripe(&plain);
+    assert!(lost <= 10, "{lost} points without the lift");
+    // A textured surface lit in the background, 30 % darker in the frame.
+    let lit_texture = |x: f64, y: f64| texture(x, y).map(|v| 0.8 * v);
+    let dark_texture = |x: f64, y: f64| texture(x, y).map(|v| 0.56 * v);
+    let bg = Background::from_image(render(w, h, &lit_texture, &[], 1.0, &mut rng));
+    let dark = render(w, h, &dark_texture, &[], 1.0, &mut rng);
+    let mut ex = Extractor::new(&lifted, &camera).expect("extractor");
+    let none = ex.extract(&dark, &bg);
+    assert!(
+        none.is_empty(),
+        "{} curves on a darkened texture",
+        none.len()
+    );
+}
