@@ -1141,17 +1141,7 @@ mod tests {
             }
         }
         let turned = planes[0] + 0.5 * (planes[0] - walls[0]);
-        let ctx = crate::solve::extend::FitContext {
-            focal_scale: 1.0,
-            sigma_img: 1e-6,
-            sigma_ortho: 1e-3,
-            outlier_k: 4.0,
-            min_crossings: 3,
-            min_bend: 1e-3,
-            min_sample_spread: 0.0,
-            max_depth_sigma: f64::INFINITY,
-            min_sin_angle: 0.1,
-        };
+        let ctx = crate::solve::extend::FitContext::for_tests(1e-6, 1e-3);
         let solution = |p0: Vector3<f64>| Solution {
             planes: std::iter::once(Some(p0))
                 .chain(planes[1..].iter().map(|v| Some(*v)))

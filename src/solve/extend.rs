@@ -46,6 +46,26 @@ pub struct FitContext {
     pub min_sin_angle: f64,
 }
 
+#[cfg(test)]
+impl FitContext {
+    /// A context for tests: focal scale 1, the given noises, and otherwise what the
+    /// solve uses (4σ outliers, three crossings, a bend of 1e-3, no sample spread or
+    /// depth limit, crossings down to a sine of 0.1).
+    pub(crate) fn for_tests(sigma_img: f64, sigma_ortho: f64) -> Self {
+        Self {
+            focal_scale: 1.0,
+            sigma_img,
+            sigma_ortho,
+            outlier_k: 4.0,
+            min_crossings: 3,
+            min_bend: 1e-3,
+            min_sample_spread: 0.0,
+            max_depth_sigma: f64::INFINITY,
+            min_sin_angle: 0.1,
+        }
+    }
+}
+
 impl PlaneFit {
     /// One standard deviation of the relative depth `δZ / Z` on the plane at the image
     /// point `u` (normalised), from [`Self::covariance`]: `√(uᵀ Σ u) / |v · u|`.
@@ -354,15 +374,8 @@ mod tests {
             .collect();
         assert!(known.len() >= 3);
         let ctx = FitContext {
-            focal_scale: 1.0,
-            sigma_img: 1e-9,
-            sigma_ortho: 1e-9,
-            outlier_k: 4.0,
-            min_crossings: 3,
-            min_bend: 1e-3,
             min_sample_spread: 4e-9,
-            max_depth_sigma: f64::INFINITY,
-            min_sin_angle: 0.1,
+            ..FitContext::for_tests(1e-9, 1e-9)
         };
         let fit = fit_plane(&cr, &known, Some(scan.planes[1]), &ctx, None).expect("fit");
         let truth = scan.planes[0];
@@ -417,15 +430,8 @@ mod tests {
         }
         assert!(crate::solve::subset::bend(crossings.iter().map(|c| c.u)) < 1e-4);
         let ctx = FitContext {
-            focal_scale: 1.0,
-            sigma_img: 1e-5,
-            sigma_ortho: 1e-5,
-            outlier_k: 4.0,
-            min_crossings: 3,
-            min_bend: 1e-3,
             min_sample_spread: 4e-5,
-            max_depth_sigma: f64::INFINITY,
-            min_sin_angle: 0.1,
+            ..FitContext::for_tests(1e-5, 1e-5)
         };
         let fit = fit_plane(&crossings, &known, Some(partner), &ctx, None).expect("fit");
         assert!(
@@ -455,15 +461,9 @@ mod tests {
             .collect();
         assert!(known.len() >= 6, "{} crossings", known.len());
         let ctx = |sigma: f64| FitContext {
-            focal_scale: 1.0,
-            sigma_img: sigma,
-            sigma_ortho: 1.0,
             outlier_k: 1e9,
-            min_crossings: 3,
             min_bend: 0.0,
-            min_sample_spread: 0.0,
-            max_depth_sigma: f64::INFINITY,
-            min_sin_angle: 0.1,
+            ..FitContext::for_tests(sigma, 1.0)
         };
         let worst = |fit: &PlaneFit| {
             known

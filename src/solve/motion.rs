@@ -415,15 +415,8 @@ mod tests {
         let mut strict = Solution::empty();
         strict.planes = vec![Some(plane(0.0)), None, Some(plane(2.0)), Some(other)];
         strict.fit_context = Some(super::super::FitContext {
-            focal_scale: 1.0,
-            sigma_img: 1e-4,
-            sigma_ortho: 1e-3,
-            outlier_k: 4.0,
-            min_crossings: 3,
-            min_bend: 1e-3,
-            min_sample_spread: 0.0,
-            max_depth_sigma: f64::INFINITY,
             min_sin_angle: 0.95,
+            ..super::super::FitContext::for_tests(1e-4, 1e-3)
         });
         let fill = fill_free_turns(
             &problem,
