@@ -221,8 +221,13 @@ pub fn check_crossings(
 /// the camera disagrees).
 pub fn agrees(va: Vector3<f64>, vb: Vector3<f64>, u: [f64; 2], params: &TriangulateParams) -> bool {
     let u = Vector3::new(u[0], u[1], 1.0);
-    let (da, db) = (va.dot(&u), vb.dot(&u));
-    da > 0.0 && db > 0.0 && 2.0 * (da - db).abs() <= params.max_crossing_disagreement * (da + db)
+    inverse_depths_agree(va.dot(&u), vb.dot(&u), params.max_crossing_disagreement)
+}
+
+/// Whether two inverse depths of one ray are both in front of the camera and differ by
+/// at most `tolerance` relative to their mean.
+pub fn inverse_depths_agree(da: f64, db: f64, tolerance: f64) -> bool {
+    da > 0.0 && db > 0.0 && 2.0 * (da - db).abs() <= tolerance * (da + db)
 }
 
 /// Which curves to leave out: `planes[i]` is the solved plane of curve `i` (`None` when

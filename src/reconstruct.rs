@@ -360,15 +360,14 @@ fn rescue_disputed_planes(
 
 /// The plane that the most of the crossings `known` (crossing index, the other curve's
 /// plane) agree with, each giving the inverse depth `v_q · u` at its `u`: the best of
-/// minimal samples of three (all of them for a few crossings, a fixed pseudo-random
-/// set otherwise) by the number agreeing within `tolerance` (relative depth), refitted
-/// by least squares on those. `None` when no sample is well conditioned.
+/// the extension's minimal samples of three ([`solve::extend::samples`]) by the number
+/// agreeing within `tolerance` (relative depth), refitted by least squares on those.
+/// `None` when no sample is well conditioned.
 fn most_agreeing_plane(
     crossings: &[Crossing],
     known: &[(usize, Vector3<f64>)],
     tolerance: f64,
 ) -> Option<Vector3<f64>> {
-    const TRIALS: usize = 256;
     let rows: Vec<(Vector3<f64>, f64)> = known
         .iter()
         .map(|(k, vq)| {
@@ -382,8 +381,7 @@ fn most_agreeing_plane(
         return None;
     }
     let agrees = |v: &Vector3<f64>, (u, d): &(Vector3<f64>, f64)| {
-        let e = v.dot(u);
-        e > 0.0 && 2.0 * (e - d).abs() <= tolerance * (e + d)
+        cloud::inverse_depths_agree(v.dot(u), *d, tolerance)
     };
     let fit = |idx: &mut dyn Iterator<Item = usize>| -> Option<Vector3<f64>> {
         let (mut a, mut b) = (nalgebra::Matrix3::zeros(), Vector3::zeros());
@@ -402,33 +400,8 @@ fn most_agreeing_plane(
             });
         (lo > 1e-9 * hi).then(|| a.cholesky().map(|c| c.solve(&b)))?
     };
-    let mut state = 0x9e37_79b9_7f4a_7c15u64;
-    let mut next = |m: usize| {
-        state = state
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        ((state >> 33) % m as u64) as usize
-    };
     let mut best: Option<(usize, Vector3<f64>)> = None;
-    let all_triples = n * (n - 1) * (n - 2) / 6 <= TRIALS;
-    let mut triples = Vec::new();
-    if all_triples {
-        for i in 0..n {
-            for j in i + 1..n {
-                for k in j + 1..n {
-                    triples.push([i, j, k]);
-                }
-            }
-        }
-    } else {
-        while triples.len() < TRIALS {
-            let t = [next(n), next(n), next(n)];
-            if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
-                triples.push(t);
-            }
-        }
-    }
-    for t in triples {
+    for t in solve::extend::samples::<3>(n) {
         let Some(v) = fit(&mut t.into_iter()) else {
             continue;
         };

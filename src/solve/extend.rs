@@ -236,7 +236,7 @@ fn sample_plane(rows: [(Vector3<f64>, f64); 3], min_sv: f64) -> Option<Vector3<f
 /// A fixed sequence of `count` distinct index tuples below `m`: all of them when there
 /// are at most `CONSENSUS_TRIALS`, else drawn (the same problem always gives the same
 /// planes).
-fn samples<const K: usize>(m: usize) -> Vec<[usize; K]> {
+pub(crate) fn samples<const K: usize>(m: usize) -> Vec<[usize; K]> {
     let mut out = Vec::new();
     if m < K {
         return out;
