@@ -560,6 +560,17 @@ mod tests {
         );
     }
 
+    /// `n` planes of a 1-unit-deep scene, each turned 0.3 rad further about the optical
+    /// axis.
+    fn fan(n: usize) -> Vec<Option<Vector3<f64>>> {
+        (0..n)
+            .map(|i| {
+                let t = i as f64 * 0.3;
+                Some(Vector3::new(t.cos() * 0.4, t.sin() * 0.4, 1.0))
+            })
+            .collect()
+    }
+
     /// Where the planes of curves `a` and `b` meet on the image row through `x`.
     fn agreeing(planes: &[Option<Vector3<f64>>], a: u32, b: u32, x: f64) -> CurveCrossing {
         let d = planes[a as usize].expect("solved") - planes[b as usize].expect("solved");
@@ -577,13 +588,7 @@ mod tests {
         // Six curves on planes of a 1-unit-deep scene; curve 5 is the glow of its sheet
         // in front of the surface: its plane is right, but where it crosses the others
         // its pixels are not where that plane meets theirs.
-        let planes: Vec<Option<Vector3<f64>>> = (0..6)
-            .map(|i| {
-                let t = i as f64 * 0.3;
-                Some(Vector3::new(t.cos() * 0.4, t.sin() * 0.4, 1.0))
-            })
-            .chain([None])
-            .collect();
+        let planes: Vec<Option<Vector3<f64>>> = fan(6).into_iter().chain([None]).collect();
         let mut crossings = Vec::new();
         for a in 0..5u32 {
             for b in a + 1..5 {
@@ -633,12 +638,7 @@ mod tests {
     /// with strengths close together, the curve that agrees less often loses it.
     #[test]
     fn a_disagreement_is_blamed_on_the_clearly_weaker_ridge() {
-        let planes: Vec<Option<Vector3<f64>>> = (0..5)
-            .map(|i| {
-                let t = i as f64 * 0.3;
-                Some(Vector3::new(t.cos() * 0.4, t.sin() * 0.4, 1.0))
-            })
-            .collect();
+        let planes = fan(5);
         // Curve 0 agrees with 2; curve 1 with 2, 3 and 4; 0 and 1 disagree at point 50
         // of each.
         let mut crossings = vec![
@@ -671,12 +671,7 @@ mod tests {
         // Curves 0..5 on the surface cross each other; curve 5 agrees with 0, 1 and 2
         // near its start (points 10, 20, 30) and runs into the water near its end,
         // where it crosses 3 and 4 (points 80, 90).
-        let planes: Vec<Option<Vector3<f64>>> = (0..6)
-            .map(|i| {
-                let t = i as f64 * 0.3;
-                Some(Vector3::new(t.cos() * 0.4, t.sin() * 0.4, 1.0))
-            })
-            .collect();
+        let planes = fan(6);
         let mut crossings = Vec::new();
         for a in 0..5u32 {
             for b in a + 1..5 {
