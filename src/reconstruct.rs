@@ -294,26 +294,19 @@ pub struct Reconstruction {
 /// sheet, where a plane fitted from the strong curves near its start is extrapolated,
 /// they are the ones that tell), and the refit is kept when more of those crossings
 /// agree with it (`max_crossing_disagreement`) than with the plane it replaces.
-/// Returns the number of planes refitted.
-#[allow(clippy::too_many_arguments)]
+/// `check` is the crossing check of `sol`'s planes; `curve_ids[k]` the two curves of
+/// `crossings[k]`. Returns the number of planes refitted.
 fn rescue_disputed_planes(
     sol: &mut Solution,
     crossings: &[Crossing],
     curve_ids: &[[u32; 2]],
-    curve_plane: &[u32],
-    curve_crossings: &[cloud::CurveCrossing],
-    faint: &[bool],
+    check: &cloud::CrossingCheck,
     params: &cloud::TriangulateParams,
 ) -> usize {
     let Some(ctx) = sol.fit_context else {
         return 0;
     };
     let given = sol.given_planes();
-    let curve_planes: Vec<Option<Vector3<f64>>> = curve_plane
-        .iter()
-        .map(|&p| given.get(p as usize).copied().flatten())
-        .collect();
-    let check = cloud::check_crossings(&curve_planes, curve_crossings, faint, params);
     // Per plane, its crossings with kept curves of other solved planes:
     // (crossing index, the other plane).
     let mut known: Vec<Vec<(usize, Vector3<f64>)>> = vec![Vec::new(); given.len()];
@@ -890,13 +883,17 @@ pub fn reconstruct_curves(
             );
             faint_planes = extended + filled;
             tracing::debug!(extended, filled, "planes from faint crossings");
+            let check = cloud::check_crossings(
+                &planes_of_curves(&sol.given_planes()),
+                &curve_crossings,
+                &faint,
+                &config.triangulate,
+            );
             let rescued = rescue_disputed_planes(
                 &mut sol,
                 &crossings,
                 &curve_ids,
-                &curve_plane,
-                &curve_crossings,
-                &faint,
+                &check,
                 &config.triangulate,
             );
             tracing::debug!(rescued, "planes refitted where their curves were disputed");
@@ -1124,26 +1121,22 @@ mod tests {
         };
         let faint = vec![false; curve_plane.len()];
         let params = cloud::TriangulateParams::default();
+        // The check of `sol`'s planes, then the rescue.
         let rescue = |sol: &mut Solution| {
-            rescue_disputed_planes(
-                sol,
-                &crossings,
-                &curve_ids,
-                &curve_plane,
-                &curve_crossings,
-                &faint,
-                &params,
-            )
+            let planes_of_curves: Vec<_> = curve_plane
+                .iter()
+                .map(|&p| sol.planes[p as usize])
+                .collect();
+            let check =
+                cloud::check_crossings(&planes_of_curves, &curve_crossings, &faint, &params);
+            let n = rescue_disputed_planes(sol, &crossings, &curve_ids, &check, &params);
+            (check, n)
         };
         // The turned plane holds on the first wall and misses the second by 2-50 %.
         let mut sol = solution(turned);
-        let planes_of_curves: Vec<_> = curve_plane
-            .iter()
-            .map(|&p| sol.planes[p as usize])
-            .collect();
-        let check = cloud::check_crossings(&planes_of_curves, &curve_crossings, &faint, &params);
+        let (check, rescued) = rescue(&mut sol);
         assert!(!check.rejected[0] && check.rejected[1], "{check:?}");
-        assert_eq!(rescue(&mut sol), 1);
+        assert_eq!(rescued, 1);
         let v = sol.planes[0].expect("solved");
         assert!(
             (v - planes[0]).norm() < 1e-9 * planes[0].norm(),
@@ -1152,7 +1145,7 @@ mod tests {
         );
         // Right planes are not touched.
         let mut sol = solution(planes[0]);
-        assert_eq!(rescue(&mut sol), 0);
+        assert_eq!(rescue(&mut sol).1, 0);
         assert_eq!(sol.planes[0], Some(planes[0]));
     }
 

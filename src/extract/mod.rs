@@ -683,6 +683,7 @@ impl Extractor {
             }
         }
         // Stripes too faint for any pixel to reach `min_value`.
+        self.dark.lift.clear();
         if self.params.faint_activation && !self.yuyv_frame {
             self.faint.activate(
                 fr,
@@ -694,11 +695,7 @@ impl Extractor {
             );
             if self.params.lift_darkened {
                 self.dark.cells_x = self.faint.darkening(&mut self.dark.lift);
-            } else {
-                self.dark.lift.clear();
             }
-        } else {
-            self.dark.lift.clear();
         }
         let (tx_n, ty_n) = (tiles_x, self.detector.tiles_y);
         for active in &mut self.active {
