@@ -129,7 +129,8 @@ fn main() -> anyhow::Result<()> {
                     );
                 }
                 if on > 0 {
-                    miss.push((on, f, l, strong));
+                    let partner = usize::from(sv.contains(&(f as u32, 1 - l)));
+                    miss.push((on, f, l, strong * 10 + partner));
                 }
             }
         }
@@ -142,8 +143,8 @@ fn main() -> anyhow::Result<()> {
         );
         for m in miss.iter().take(40) {
             println!(
-                "  frame {} laser {}: {} points on the surface, {} strong curves",
-                m.1, m.2, m.0, m.3
+                "  frame {} laser {}: {} points on the surface, {} strong curves, partner solved {}",
+                m.1, m.2, m.0, m.3 / 10, m.3 % 10
             );
         }
     }
