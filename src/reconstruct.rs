@@ -251,7 +251,8 @@ pub struct ReconstructReport {
     pub rejected_crossings: usize,
     pub rejected_planes: usize,
     /// Planes whose turn about their 3D line came from the neighbouring frames
-    /// (`solve.motion_prior_max_gap`).
+    /// (`solve.motion_prior_max_gap`), or from their own crossings a pixel or less
+    /// off one line where those disagree with the neighbours.
     pub planes_fixed_by_motion: usize,
     /// Extended planes dropped because their crossings fixed them too loosely
     /// (`solve.uncertain_plane_ratio`); the motion prior may have given them a plane

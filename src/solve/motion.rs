@@ -6,25 +6,31 @@
 //! such planes out; on scenes of large flat surfaces that is most of the unsolved area.
 //!
 //! The projector is hand-held and the video runs at tens of frames per second, so the
-//! same laser's planes in the neighbouring frames are close to this one. The plane is
-//! taken as the prior interpolated from the nearest solved planes of the same laser
-//! (at most `max_gap` frames away), moved the least amount that makes it agree with
-//! every crossing: `v = v_prior + A⁺ (b − A v_prior)`, with `A⁺` the pseudo-inverse of
-//! the crossing rows truncated to the directions they determine. The crossings then
-//! decide everything they can; the prior only the turn. For a straight curve on a flat
-//! surface the turn does not change its points at all; where the curve leaves the
-//! surface, the prior keeps it close.
+//! same laser's planes in the neighbouring frames are close to this one. The prior is
+//! interpolated from the nearest solved planes of the same laser (at most `max_gap`
+//! frames away) as homogeneous planes, which move smoothly even where the sheet
+//! sweeps through the camera centre. The crossings decide the two directions they
+//! determine, and the turn about the third is the one that brings the plane closest
+//! to the prior. For a straight curve on a flat surface the turn does not change its
+//! points at all; where the curve leaves the surface, the prior keeps it close.
+//!
+//! A sheet passing within centimetres of the camera centre is the exception: its
+//! crossings lie within a pixel of one line, too close for the ordinary fit, yet its
+//! depths follow those sub-pixel offsets more closely than any prior. Where the prior
+//! disagrees with the crossings, their own least-squares plane is taken, if no single
+//! crossing sets its turn and all agree with it within the cloud's crossing check.
 
 use std::collections::{BTreeMap, HashMap};
 
-use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use nalgebra::{Matrix3, SymmetricEigen, Vector3, Vector4};
 
 use super::{Problem, Solution};
 
 /// What [`fill_free_turns`] did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct MotionFill {
-    /// Planes fixed by the motion prior.
+    /// Planes fixed by the motion prior, or by their own crossings where those
+    /// disagree with the prior but fix the turn themselves.
     pub filled: usize,
     /// Planes that had a prior and enough crossings, but disagreed with them.
     pub refused: usize,
@@ -41,6 +47,21 @@ const MAX_RELATIVE_DEPTH: f64 = 0.005;
 /// Eigenvalues of the unit crossing rows' `AᵀA` below this fraction of the largest
 /// count as undetermined (coincident crossings fix no line).
 const RANK_THRESHOLD: f64 = 1e-4;
+
+/// One crossing with a solved curve: its ray `u` and `b = u·v` of that curve's plane,
+/// which this plane must meet (`u·v = b`).
+type Row = (Vector3<f64>, f64);
+
+/// Largest relative disagreement at a crossing for a plane that its crossings fix
+/// alone but barely ([`own_turn`]): the crossing check of the cloud's, so that the
+/// plane is kept only where the check would keep its points.
+const MAX_RELATIVE_DEPTH_OWN_TURN: f64 = 0.02;
+
+/// Smallest eigenvalue of the unit crossing rows' `AᵀA`, as a fraction of the
+/// largest, for the crossings to fix the turn themselves: their rays' mean square
+/// distance from their best plane through the camera centre, about 0.15 px RMS off
+/// one image line at a focal length of 1450 px.
+const MIN_TURN_SPREAD: f64 = 1e-8;
 
 /// Which of `problem`'s crossings `solution` did not reject.
 fn not_rejected(problem: &Problem, solution: &Solution) -> Vec<bool> {
@@ -106,7 +127,7 @@ pub fn fill_free_turns(
             if solution.planes[c].is_some() || bad_curve[c] {
                 continue;
             }
-            let rows: Vec<(Vector3<f64>, f64)> = adj[c]
+            let rows: Vec<Row> = adj[c]
                 .iter()
                 .filter_map(|&(o, k)| {
                     let vo = solution.planes[o]?;
@@ -255,90 +276,194 @@ fn extend_around_solved(
     (planes, rc, rv)
 }
 
-/// The prior plane of `frame`: linear interpolation between the nearest solved planes
-/// of this laser before and after (each at most `max_gap` frames away), or the one of
-/// them that exists.
+/// The prior plane of `frame` as a unit homogeneous plane `(n, −1)/|(n, −1)|`, up to
+/// sign: linear interpolation between the nearest solved planes of this laser before
+/// and after (each at most `max_gap` frames away), or the one of them that exists.
+///
+/// Interpolated in homogeneous form, not as `v`: a hand-held sheet can sweep through
+/// the camera centre, where `v = n/d` grows without bound and changes sign while the
+/// homogeneous plane moves smoothly. Each is signed to agree with the other first.
 fn interpolate(
     frames: &BTreeMap<u32, usize>,
     frame: u32,
     max_gap: u32,
     planes: &[Option<Vector3<f64>>],
-) -> Option<Vector3<f64>> {
+) -> Option<Vector4<f64>> {
+    let homogeneous = |v: Vector3<f64>| Vector4::new(v.x, v.y, v.z, -1.0).normalize();
     let before = frames
         .range(frame.saturating_sub(max_gap)..frame)
         .rev()
-        .find_map(|(&f, &c)| planes[c].map(|v| (f, v)));
+        .find_map(|(&f, &c)| planes[c].map(|v| (f, homogeneous(v))));
     let after = frames
         .range(frame + 1..=frame.saturating_add(max_gap))
-        .find_map(|(&f, &c)| planes[c].map(|v| (f, v)));
+        .find_map(|(&f, &c)| planes[c].map(|v| (f, homogeneous(v))));
     match (before, after) {
-        (Some((f0, v0)), Some((f1, v1))) => {
+        (Some((f0, p0)), Some((f1, p1))) => {
+            let p1 = if p0.xyz().dot(&p1.xyz()) < 0.0 {
+                -p1
+            } else {
+                p1
+            };
             let t = f64::from(frame - f0) / f64::from(f1 - f0);
-            Some(v0 * (1.0 - t) + v1 * t)
+            Some(p0 * (1.0 - t) + p1 * t)
         }
-        (Some((_, v)), None) | (None, Some((_, v))) => Some(v),
+        (Some((_, p)), None) | (None, Some((_, p))) => Some(p),
         (None, None) => None,
     }
 }
 
-/// [`constrained`], leaving out the worst-agreeing crossing while any disagrees by
-/// more than [`MAX_RELATIVE_DEPTH`] (up to a quarter of them, keeping one more than
-/// the directions they fix). `None` if they cannot be made to agree.
-fn trimmed(prior: Vector3<f64>, mut rows: Vec<(Vector3<f64>, f64)>) -> Option<Vector3<f64>> {
+/// The plane for `rows` (`u·v = b`, one per crossing with a solved curve): the
+/// prior's turn where the crossings agree with it ([`constrained`], every crossing
+/// within [`MAX_RELATIVE_DEPTH`]), else the crossings' own plane where they fix the
+/// turn themselves, if barely ([`own_turn`], [`turn_is_shared`]). `None` if neither
+/// agrees.
+fn trimmed(prior: Vector4<f64>, rows: Vec<Row>) -> Option<Vector3<f64>> {
+    if let Some((v, _)) = trimmed_by(rows.clone(), MAX_RELATIVE_DEPTH, |r| constrained(prior, r)) {
+        return Some(v);
+    }
+    let (v, kept) = trimmed_by(rows, MAX_RELATIVE_DEPTH_OWN_TURN, own_turn)?;
+    turn_is_shared(&kept).then_some(v)
+}
+
+/// `fit`, leaving out the worst-agreeing row while any disagrees by more than `limit`
+/// (up to a quarter of them, keeping one more than the directions the fit fixes):
+/// the plane and the rows it kept. `None` if they cannot be made to agree.
+fn trimmed_by(
+    mut rows: Vec<Row>,
+    limit: f64,
+    fit: impl Fn(&[Row]) -> Option<(Vector3<f64>, usize)>,
+) -> Option<(Vector3<f64>, Vec<Row>)> {
     let max_drop = rows.len() / 4;
     for _ in 0..=max_drop {
-        let (v, rank) = constrained(prior, &rows)?;
+        let (v, rank) = fit(&rows)?;
         if rows.len() <= rank {
             return None;
         }
-        let rel = |(u, b): &(Vector3<f64>, f64)| ((v.dot(u) - b) / b).abs();
         let (worst, e) = rows
             .iter()
             .enumerate()
-            .map(|(i, r)| (i, rel(r)))
+            .map(|(i, r)| (i, relative_error(&v, r)))
             .max_by(|a, b| a.1.total_cmp(&b.1))?;
-        if e <= MAX_RELATIVE_DEPTH {
-            return Some(v);
+        if e <= limit {
+            return Some((v, rows));
         }
         rows.swap_remove(worst);
     }
     None
 }
 
-/// `prior` moved the least so that `u·v = b` for every row, in the two directions the
-/// rows determine best (the eigenvectors of `AᵀA` with the largest eigenvalues).
-fn constrained(prior: Vector3<f64>, rows: &[(Vector3<f64>, f64)]) -> Option<(Vector3<f64>, usize)> {
+fn relative_error(v: &Vector3<f64>, (u, b): &Row) -> f64 {
+    ((v.dot(u) - b) / b).abs()
+}
+
+/// The eigen-decomposition of the unit rows' `AᵀA`, `Aᵀb`, and the eigenvalues'
+/// order from the largest.
+type NormalEquations = (SymmetricEigen<f64, nalgebra::U3>, Vector3<f64>, [usize; 3]);
+
+/// The eigen-decomposition of the unit rows' `AᵀA` (every crossing weighs the same
+/// whatever its ray's length), with `Aᵀb`, and its directions from the best
+/// determined to the least; `None` if the rows are empty.
+fn normal_equations(rows: &[Row]) -> Option<NormalEquations> {
     let mut ata = Matrix3::zeros();
-    let mut atr = Vector3::zeros();
+    let mut atb = Vector3::zeros();
     for (u, b) in rows {
-        // Unit rows: every crossing weighs the same whatever its ray's length.
         let s = 1.0 / u.norm();
-        let (u, r) = (u * s, (b - u.dot(&prior)) * s);
+        let (u, b) = (u * s, b * s);
         ata += u * u.transpose();
-        atr += u * r;
+        atb += u * b;
     }
     let eig = SymmetricEigen::new(ata);
     let top = eig.eigenvalues.max();
     if top.is_nan() || top <= 0.0 {
         return None;
     }
-    // The two directions the crossings fix best (their 3D line); the turn about it
-    // stays the prior's. Crossings that fix the turn too would have given the plane
-    // through the ordinary fit, so here one stray crossing off the line must not set
-    // it.
     let mut order = [0usize, 1, 2];
     order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
-    let mut delta = Vector3::zeros();
-    let mut rank = 0;
+    Some((eig, atb, order))
+}
+
+/// The plane that meets every row `u·v = b` in the two directions the rows determine
+/// best (the eigenvectors of `AᵀA` with the largest eigenvalues), turned about the
+/// third to lie closest to the homogeneous `prior` (largest |cos| of the angle
+/// between them as 4-vectors).
+fn constrained(prior: Vector4<f64>, rows: &[Row]) -> Option<(Vector3<f64>, usize)> {
+    let (eig, atb, order) = normal_equations(rows)?;
+    let top = eig.eigenvalues[order[0]];
+    // The two directions the crossings fix best (their 3D line); the turn about it
+    // is the prior's. Crossings that fix the turn too would have given the plane
+    // through the ordinary fit, so here one stray crossing off the line must not set
+    // it.
+    let mut fixed = Vector3::zeros();
     for &i in &order[..2] {
         let l = eig.eigenvalues[i];
-        if l > RANK_THRESHOLD * top {
-            let e = eig.eigenvectors.column(i);
-            delta += e * (e.dot(&atr) / l);
-            rank += 1;
+        if l <= RANK_THRESHOLD * top {
+            return None;
         }
+        let e = eig.eigenvectors.column(i);
+        fixed += e * (e.dot(&atb) / l);
     }
-    (rank >= 2).then_some((prior + delta, rank))
+    // v = fixed + t·e, with `fixed` ⟂ e: the homogeneous plane w(t) = (v, −1) is
+    // closest to the prior where (p·w)² / |w|² = (a + t·b)² / (c + t²) peaks, at
+    // t = b·c / a. A prior through the camera centre (a = 0) fixes no finite turn.
+    let e: Vector3<f64> = eig.eigenvectors.column(order[2]).into();
+    let a = prior.xyz().dot(&fixed) - prior.w;
+    let b = prior.xyz().dot(&e);
+    let c = fixed.norm_squared() + 1.0;
+    if a.abs() < 1e-12 * c.sqrt() {
+        return None;
+    }
+    Some((fixed + e * (b * c / a), 2))
+}
+
+/// The least-squares plane of the rows alone, when their rays spread off their best
+/// image line by at least [`MIN_TURN_SPREAD`] (with the direction of least spread,
+/// the turn).
+///
+/// This is the sheet that passes within centimetres of the camera centre: all its
+/// crossings lie within a pixel of one image line, too close for the ordinary fit's
+/// bend, yet with `|v|` large those sub-pixel offsets are what its depths follow,
+/// and a prior from the neighbouring frames is rarely that exact.
+fn least_squares(rows: &[Row]) -> Option<(Vector3<f64>, Vector3<f64>)> {
+    let (eig, atb, order) = normal_equations(rows)?;
+    if eig.eigenvalues[order[2]] <= MIN_TURN_SPREAD * eig.eigenvalues[order[0]] {
+        return None;
+    }
+    let v = order
+        .iter()
+        .map(|&i| {
+            let e = eig.eigenvectors.column(i);
+            e * (e.dot(&atb) / eig.eigenvalues[i])
+        })
+        .sum();
+    Some((v, eig.eigenvectors.column(order[2]).into_owned()))
+}
+
+/// [`least_squares`] as a fit for [`trimmed_by`].
+fn own_turn(rows: &[Row]) -> Option<(Vector3<f64>, usize)> {
+    least_squares(rows).map(|(v, _)| (v, 3))
+}
+
+/// Whether the turn the rows fix is not one crossing's alone: the plane without the
+/// row that weighs most on the turn still meets every row within
+/// [`MAX_RELATIVE_DEPTH_OWN_TURN`].
+fn turn_is_shared(rows: &[Row]) -> bool {
+    let Some((_, turn)) = least_squares(rows) else {
+        return false;
+    };
+    let weight = |(u, _): &Row| (turn.dot(u) / u.norm()).abs();
+    let Some(heaviest) =
+        (0..rows.len()).max_by(|&a, &b| weight(&rows[a]).total_cmp(&weight(&rows[b])))
+    else {
+        return false;
+    };
+    let rest: Vec<_> = (0..rows.len())
+        .filter(|&i| i != heaviest)
+        .map(|i| rows[i])
+        .collect();
+    least_squares(&rest).is_some_and(|(without, _)| {
+        rows.iter()
+            .all(|r| relative_error(&without, r) <= MAX_RELATIVE_DEPTH_OWN_TURN)
+    })
 }
 
 #[cfg(test)]
@@ -346,29 +471,46 @@ mod tests {
     use super::*;
     use crate::intersect::Crossing;
 
+    /// `v` of the homogeneous plane `a·cos(θ) + b·sin(θ)`, `a` and `b` orthonormal
+    /// 4-vectors: planes turning at a steady rate, so that the homogeneous mean of
+    /// two is the one halfway.
+    fn turning(a: Vector4<f64>, b: Vector4<f64>, theta: f64) -> Vector3<f64> {
+        let p = a * theta.cos() + b * theta.sin();
+        -p.xyz() / p.w
+    }
+
+    fn orthonormal(a: Vector4<f64>, b: Vector4<f64>) -> (Vector4<f64>, Vector4<f64>) {
+        let a = a.normalize();
+        (a, (b - a * a.dot(&b)).normalize())
+    }
+
+    /// Crossings of the plane `truth` with the solved plane `other` at the image
+    /// x positions `xs`: on one image line.
+    fn crossings_on(truth: Vector3<f64>, other: Vector3<f64>, b: u32, xs: &[f64]) -> Vec<Crossing> {
+        let d = truth - other;
+        xs.iter()
+            .map(|&x| Crossing {
+                a: 1,
+                b,
+                u: [x, -(d.x * x + d.z) / d.y],
+                sin_angle: 0.9,
+            })
+            .collect()
+    }
+
     /// Planes of one laser turning slowly; the middle one's crossings all lie on one
     /// image line, so only the motion prior can fix its turn.
     #[test]
     fn a_collinear_plane_gets_the_turn_of_its_neighbours() {
-        let plane = |t: f64| Vector3::new(0.8 + 0.01 * t, 0.05 * t, 0.4);
+        let (a, b) = orthonormal(
+            Vector4::new(0.8, 0.0, 0.4, -1.0),
+            Vector4::new(0.01, 0.05, 0.0, 0.0),
+        );
+        let plane = |t: f64| turning(a, b, 0.05 * t);
         // Curves 0, 1, 2: laser 0 in frames 0, 1, 2. Curve 3: a solved crossing curve.
         let other = Vector3::new(-0.3, 0.9, 0.5);
         let truth = plane(1.0);
-        // Points on the line where plane(1) meets `other`'s... choose image points
-        // along a line and give them depths consistent with the true plane.
-        let mut crossings = Vec::new();
-        for (i, x) in [-0.2f64, 0.0, 0.15, 0.3].iter().enumerate() {
-            // A point u on both planes: solve for y with (truth - other)·(x, y, 1) = 0.
-            let d = truth - other;
-            let y = -(d.x * x + d.z) / d.y;
-            crossings.push(Crossing {
-                a: 1,
-                b: 3,
-                u: [*x, y],
-                sin_angle: 0.9,
-            });
-            let _ = i;
-        }
+        let crossings = crossings_on(truth, other, 3, &[-0.2, 0.0, 0.15, 0.3]);
         let problem = Problem {
             num_curves: 4,
             crossings: &crossings,
@@ -464,5 +606,87 @@ mod tests {
         );
         assert_eq!(fill.filled, 0);
         assert!(sol2.planes[1].is_none());
+    }
+
+    /// A sheet sweeping through the camera centre: `v = n/d` of the planes before and
+    /// after point opposite ways (their mean in `v` lies beyond the far one), while
+    /// the homogeneous planes move smoothly and their mean gives the turn.
+    #[test]
+    fn a_sheet_sweeping_through_the_camera_centre_gets_a_smooth_turn() {
+        let n = Vector3::new(-0.3, 0.94, -0.1).normalize();
+        let plane = |d: f64| n / d;
+        let (truth, other) = (plane(0.01), Vector3::new(-0.3, 0.9, 0.5));
+        let crossings = crossings_on(truth, other, 3, &[-0.2, 0.0, 0.15, 0.3]);
+        let problem = Problem {
+            num_curves: 4,
+            crossings: &crossings,
+            partner: &[None; 4],
+            focal_px: 1000.0,
+        };
+        let mut sol = Solution::empty();
+        sol.planes = vec![Some(plane(0.03)), None, Some(plane(-0.01)), Some(other)];
+        let sequence = [(0, 0), (1, 0), (2, 0), (1, 1)];
+        let fill = fill_free_turns(&problem, &[true; 4], &mut sol, &sequence, 3);
+        assert_eq!(fill.filled, 1);
+        let v = sol.planes[1].expect("filled");
+        // Points of the sheet a few degrees off the crossings' line.
+        for u in [Vector3::new(0.1, 0.05, 1.0), Vector3::new(-0.2, -0.1, 1.0)] {
+            let u = u + n * (-(truth.dot(&u) - 1.0 / 0.8) / truth.dot(&n));
+            let rel = (v.dot(&u) / truth.dot(&u) - 1.0).abs();
+            assert!(rel < 1e-3, "depth off by {rel} at {u:?}");
+        }
+    }
+
+    /// A sheet close to the camera centre whose crossings lie within a fraction of a
+    /// pixel of one image line: with `|v|` large they still fix its turn, and that
+    /// wins over a prior that disagrees with them.
+    #[test]
+    fn crossings_a_pixel_off_one_line_fix_the_turn_over_a_wrong_prior() {
+        let n = Vector3::new(-0.3, 0.94, -0.1).normalize();
+        let truth = n / 0.02;
+        let other = Vector3::new(-0.3, 0.9, 0.5);
+        // Points of the sheet near the line where it meets `other`, each crossed by a
+        // solved curve of its own through that point.
+        let line = crossings_on(truth, other, 0, &[-0.3, -0.2, -0.1, 0.0, 0.1, 0.2, 0.3]);
+        let mut planes = vec![Some(truth * 0.8), None, Some(truth * 0.85)];
+        let mut crossings = Vec::new();
+        for (k, c) in line.iter().enumerate() {
+            // Up to 1.2 px off the line at a focal length of 1450 px.
+            let off = [0.6, -1.2, 0.3, 0.9, -0.6, 1.2, -0.3][k] / 1450.0;
+            let u = Vector3::new(c.u[0], c.u[1] + off, 1.0);
+            let o = other + u * ((truth - other).dot(&u) / u.norm_squared());
+            planes.push(Some(o));
+            crossings.push(Crossing {
+                a: 1,
+                b: planes.len() as u32 - 1,
+                u: [u.x, u.y],
+                sin_angle: 0.9,
+            });
+        }
+        let bends = crate::solve::subset::bend(crossings.iter().map(|c| c.u));
+        assert!(bends < 1e-3, "the ordinary fit would take it: bend {bends}");
+        let problem = Problem {
+            num_curves: planes.len(),
+            crossings: &crossings,
+            partner: &vec![None; planes.len()],
+            focal_px: 1450.0,
+        };
+        let mut sol = Solution::empty();
+        sol.planes = planes;
+        let mut sequence = vec![(0, 0), (1, 0), (2, 0)];
+        sequence.extend((0..crossings.len() as u32).map(|k| (1 + k, 1)));
+        let fill = fill_free_turns(
+            &problem,
+            &vec![true; crossings.len()],
+            &mut sol,
+            &sequence,
+            3,
+        );
+        assert_eq!((fill.filled, fill.refused), (1, 0));
+        let v = sol.planes[1].expect("filled");
+        assert!(
+            (v - truth).norm() < 1e-6 * truth.norm(),
+            "{v:?} vs {truth:?}"
+        );
     }
 }
