@@ -59,9 +59,10 @@ const MAX_RELATIVE_DEPTH_OWN_TURN: f64 = 0.02;
 
 /// Smallest eigenvalue of the unit crossing rows' `AᵀA`, as a fraction of the
 /// largest, for the crossings to fix the turn themselves: their rays' mean square
-/// distance from their best plane through the camera centre, about 0.15 px RMS off
-/// one image line at a focal length of 1450 px.
-const MIN_TURN_SPREAD: f64 = 1e-8;
+/// distance from their best plane through the camera centre, about 0.05 px RMS off
+/// one image line at a focal length of 1450 px, the noise of a crossing's position.
+/// Below it their offsets are noise; above it, the agreement checks judge the fit.
+const MIN_TURN_SPREAD: f64 = 1e-9;
 
 /// Which of `problem`'s crossings `solution` did not reject.
 fn not_rejected(problem: &Problem, solution: &Solution) -> Vec<bool> {
