@@ -846,6 +846,21 @@ pub fn reconstruct_curves(
                 crossings: resolved.as_deref().unwrap_or(&strong),
                 ..problem
             };
+            // Every plane solved so far refined together; the planes given afterwards
+            // (the motion prior's, from faint crossings, refitted) follow them.
+            let mut not_rejected = vec![true; problem.crossings.len()];
+            for &k in &sol.rejected_crossings {
+                if let Some(u) = not_rejected.get_mut(k) {
+                    *u = false;
+                }
+            }
+            let joint = solve::joint::refine_jointly(
+                &problem,
+                &not_rejected,
+                &mut sol,
+                config.solve.joint_refinement_steps,
+            );
+            tracing::debug!(?joint, "planes refined together");
             let sequence: Vec<(u32, u8)> = planes.iter().map(|p| (p.frame, p.laser)).collect();
             motion_fill = solve::motion::fill_and_extend(
                 &problem,

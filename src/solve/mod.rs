@@ -39,6 +39,7 @@
 //! about 1) and depths are positive; the caller rescales to metric units.
 
 pub mod extend;
+pub mod joint;
 pub mod motion;
 pub mod nullspace;
 pub mod ortho;
@@ -152,6 +153,11 @@ pub struct SolveParams {
     /// together) were the worst of the water scenes, 1.3-3 % off. Relative, so that
     /// noisier crossings everywhere drop nothing more. 0 keeps all.
     pub uncertain_plane_ratio: f64,
+    /// Gauss–Newton steps of the final refinement of every solved plane together
+    /// ([`joint`]): crossings and the orthogonality of every cross weighed at once, so
+    /// that the common shift `w` is not set by the crosses with the planes held as
+    /// they are. 0 leaves the planes as the stages before give them.
+    pub joint_refinement_steps: usize,
 }
 
 impl Default for SolveParams {
@@ -172,6 +178,7 @@ impl Default for SolveParams {
             min_curve_strength: 40.0,
             min_crossing_strength: 15.0,
             uncertain_plane_ratio: 4.0,
+            joint_refinement_steps: 5,
         }
     }
 }

@@ -1,0 +1,445 @@
+//! Stage 9: every solved plane refined together.
+//!
+//! The global solve fixes the planes of its subset from the algebraic null vector of
+//! the coplanarity system, and the orthogonality of their crosses fixes the shift `w`
+//! of that family; every other plane is then fitted with those held fixed. Each step
+//! is sound, but none weighs all the evidence at once: the shift is set by the crosses
+//! alone with the planes held as they are, so the planes' own noise goes into it
+//! whole, and a shift off by 1 % of the inverse depth makes the depth error grow with
+//! depth.
+//!
+//! Here all solved planes move together, minimising
+//!
+//! ```text
+//!   Σ_crossings ρ(e_k / σ_img)  +  Σ_crosses (cos θ_ab / σ_ortho)²  +  Σ_planes |v_i − v_i⁰|²_Q_i
+//! ```
+//!
+//! with `e_k` the Sampson residual of crossing `k` (image units), `ρ` Huber's loss,
+//! `cos θ_ab` the cosine between the two planes of a cross, and `Q_i` a weak prior
+//! that holds only the directions a plane's own crossings leave unfixed (a plane
+//! whose crossings lie on one image line keeps the turn the motion prior gave it).
+//! Gauss–Newton with Levenberg–Marquardt damping; the global scale, which no term
+//! fixes, is restored afterwards to the median inverse depth at the crossings used.
+
+use faer::Mat;
+use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+
+use super::nullspace::sampson;
+use super::{Problem, Solution};
+
+/// What [`refine_jointly`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct JointFit {
+    /// Planes refined together.
+    pub planes: usize,
+    /// Crossings and crosses used.
+    pub crossings: usize,
+    pub crosses: usize,
+    /// Accepted Gauss–Newton steps.
+    pub steps: usize,
+    /// Cost (in units of the noise, squared) before and after.
+    pub cost_before: f64,
+    pub cost_after: f64,
+}
+
+/// Huber's threshold, in units of the noise.
+const HUBER_K: f64 = 2.0;
+
+/// A plane's direction whose information from its own crossings is below this fraction
+/// of its best-fixed direction's is held by the prior.
+const WEAK_FRACTION: f64 = 1e-4;
+
+/// Robust spread (1.4826 × the median absolute value) of residuals.
+fn spread(values: impl Iterator<Item = f64>) -> Option<f64> {
+    super::median(values.map(f64::abs).collect())
+        .map(|m| 1.4826 * m)
+        .filter(|s| s.is_finite() && *s > 0.0)
+}
+
+/// The evidence: crossings `(a, b, u)` between solved planes `a` and `b` at the ray
+/// `u` (focal-corrected), crosses `(a, b)`, and the noise of each.
+struct Evidence {
+    rows: Vec<(usize, usize, Vector3<f64>)>,
+    crosses: Vec<(usize, usize)>,
+    sigma: f64,
+    sigma_ortho: f64,
+}
+
+impl Evidence {
+    /// The cost of `planes` (each plane's prior `q` about `start`).
+    fn cost(&self, planes: &[Vector3<f64>], start: &[Vector3<f64>], q: &[Matrix3<f64>]) -> f64 {
+        let mut total = 0.0;
+        for &(a, b, u) in &self.rows {
+            if let Some((e, _)) = sampson(&planes[a], &planes[b], [u.x, u.y]) {
+                total += huber(e / self.sigma);
+            }
+        }
+        for &(a, b) in &self.crosses {
+            total += huber(cosine(&planes[a], &planes[b]) / self.sigma_ortho);
+        }
+        for ((v, v0), q) in planes.iter().zip(start).zip(q) {
+            let d = v - v0;
+            total += d.dot(&(q * d));
+        }
+        total
+    }
+
+    /// Gauss–Newton normal equations at `planes`: `H` (dense, 3 unknowns per plane)
+    /// and the gradient `g`, Huber's weights applied.
+    fn normal_equations(
+        &self,
+        planes: &[Vector3<f64>],
+        start: &[Vector3<f64>],
+        q: &[Matrix3<f64>],
+    ) -> (Mat<f64>, Vec<f64>) {
+        let dim = 3 * planes.len();
+        let mut h = Mat::<f64>::zeros(dim, dim);
+        let mut g = vec![0.0; dim];
+        let add = |h: &mut Mat<f64>,
+                   g: &mut [f64],
+                   (i, ji): (usize, Vector3<f64>),
+                   (j, jj): (usize, Vector3<f64>),
+                   w: f64,
+                   r: f64| {
+            for x in 0..3 {
+                for y in 0..3 {
+                    h[(3 * i + x, 3 * j + y)] += w * ji[x] * jj[y];
+                }
+            }
+            if i == j {
+                for x in 0..3 {
+                    g[3 * i + x] += w * ji[x] * r;
+                }
+            }
+        };
+        let term = |h: &mut Mat<f64>,
+                    g: &mut [f64],
+                    a: (usize, Vector3<f64>),
+                    b: (usize, Vector3<f64>),
+                    r: f64,
+                    sigma: f64| {
+            let z = r / sigma;
+            let w = if z.abs() <= HUBER_K {
+                1.0
+            } else {
+                HUBER_K / z.abs()
+            } / (sigma * sigma);
+            add(h, g, a, a, w, r);
+            add(h, g, b, b, w, r);
+            add(h, g, a, b, w, r);
+            add(h, g, b, a, w, r);
+        };
+        for &(a, b, u) in &self.rows {
+            let d = planes[a] - planes[b];
+            let (Some(j), Some((e, _))) = (
+                sampson_jacobian(&d, &u),
+                sampson(&planes[a], &planes[b], [u.x, u.y]),
+            ) else {
+                continue;
+            };
+            term(&mut h, &mut g, (a, j), (b, -j), e, self.sigma);
+        }
+        for &(a, b) in &self.crosses {
+            let (va, vb) = (planes[a], planes[b]);
+            let (na, nb) = (va.norm(), vb.norm());
+            let c = cosine(&va, &vb);
+            let ja = vb / (na * nb) - va * (c / (na * na));
+            let jb = va / (na * nb) - vb * (c / (nb * nb));
+            term(&mut h, &mut g, (a, ja), (b, jb), c, self.sigma_ortho);
+        }
+        for (i, ((v, v0), q)) in planes.iter().zip(start).zip(q).enumerate() {
+            let pg = q * (v - v0);
+            for x in 0..3 {
+                g[3 * i + x] += pg[x];
+                for y in 0..3 {
+                    h[(3 * i + x, 3 * i + y)] += q[(x, y)];
+                }
+            }
+        }
+        (h, g)
+    }
+}
+
+/// Refines every solved plane of `solution` together over the `usable` crossings of
+/// `problem` (those among solved planes that the current planes keep as inliers) and
+/// the crosses of solved partners that are not outliers; at most `max_steps` accepted
+/// steps. `None` (planes as they were) when the solution has no fit context or too
+/// little to refine.
+pub fn refine_jointly(
+    problem: &Problem,
+    usable: &[bool],
+    solution: &mut Solution,
+    max_steps: usize,
+) -> Option<JointFit> {
+    let ctx = solution.fit_context?;
+    if max_steps == 0 {
+        return None;
+    }
+    let lambda = solution.focal_scale;
+    let n = problem.num_curves.min(solution.planes.len());
+    let mut index = vec![usize::MAX; n];
+    let mut start: Vec<Vector3<f64>> = Vec::new();
+    let mut curve_of = Vec::new();
+    for (c, p) in solution.planes.iter().enumerate().take(n) {
+        if let Some(p) = p {
+            index[c] = start.len();
+            start.push(*p);
+            curve_of.push(c);
+        }
+    }
+    let m = start.len();
+    let solved = |c: usize| index.get(c).copied().filter(|&i| i != usize::MAX);
+    // Inliers by the solve's own noise; the spread below is then measured on them.
+    let gate = ctx.outlier_k * ctx.sigma_img / lambda;
+    let rows: Vec<(usize, usize, Vector3<f64>)> = problem
+        .crossings
+        .iter()
+        .enumerate()
+        .filter(|&(k, c)| usable.get(k).copied().unwrap_or(false) && c.a != c.b)
+        .filter(|(_, c)| c.sin_angle >= ctx.min_sin_angle)
+        .filter_map(|(_, c)| {
+            let (a, b) = (solved(c.a as usize)?, solved(c.b as usize)?);
+            let u = Vector3::new(c.u[0] / lambda, c.u[1] / lambda, 1.0);
+            let (e, _) = sampson(&start[a], &start[b], [u.x, u.y])?;
+            (e.abs() <= gate).then_some((a, b, u))
+        })
+        .collect();
+    let crosses: Vec<(usize, usize)> = problem
+        .partner
+        .iter()
+        .enumerate()
+        .take(n)
+        .filter_map(|(c, p)| {
+            let p = (*p)? as usize;
+            (p > c).then_some((solved(c)?, solved(p)?))
+        })
+        .collect();
+    if m < 4 || rows.len() < 3 * m || crosses.is_empty() {
+        return None;
+    }
+    // The noise of each kind from the current residuals, so that the two kinds of
+    // evidence weigh as their scatter says; crosses beyond the outlier bound stay out.
+    let sigma = spread(
+        rows.iter()
+            .filter_map(|&(a, b, u)| sampson(&start[a], &start[b], [u.x, u.y]).map(|(e, _)| e)),
+    )?;
+    let sigma_ortho = spread(crosses.iter().map(|&(a, b)| cosine(&start[a], &start[b])))?;
+    let crosses: Vec<(usize, usize)> = crosses
+        .into_iter()
+        .filter(|&(a, b)| cosine(&start[a], &start[b]).abs() <= ctx.outlier_k * sigma_ortho)
+        .collect();
+    let evidence = Evidence {
+        rows,
+        crosses,
+        sigma,
+        sigma_ortho,
+    };
+    let q = weak_prior(&evidence, &start);
+
+    let mut planes = start.clone();
+    let cost_before = evidence.cost(&planes, &start, &q);
+    let mut current = cost_before;
+    let mut mu = 1e-4;
+    let mut steps = 0;
+    while steps < max_steps {
+        let (mut h, g) = evidence.normal_equations(&planes, &start, &q);
+        let diagonal: Vec<f64> = (0..h.nrows()).map(|i| h[(i, i)]).collect();
+        let mut next = None;
+        // Levenberg–Marquardt: more damping until a step lowers the cost. The damping
+        // goes on the diagonal in place (the matrix is the largest allocation here).
+        for _ in 0..6 {
+            for (i, d) in diagonal.iter().enumerate() {
+                h[(i, i)] = d + mu * d.max(f64::MIN_POSITIVE);
+            }
+            let Ok(llt) = h.llt(faer::Side::Lower) else {
+                mu *= 10.0;
+                continue;
+            };
+            let mut step = Mat::<f64>::from_fn(g.len(), 1, |i, _| -g[i]);
+            faer::linalg::solvers::Solve::solve_in_place(&llt, step.as_mut());
+            let trial: Vec<Vector3<f64>> = planes
+                .iter()
+                .enumerate()
+                .map(|(i, v)| {
+                    v + Vector3::new(step[(3 * i, 0)], step[(3 * i + 1, 0)], step[(3 * i + 2, 0)])
+                })
+                .collect();
+            let c = evidence.cost(&trial, &start, &q);
+            if c.is_finite() && c < current {
+                next = Some((trial, c));
+                mu = (mu / 3.0).max(1e-12);
+                break;
+            }
+            mu *= 10.0;
+        }
+        let Some((trial, c)) = next else {
+            break;
+        };
+        let settled = current - c < 1e-7 * current;
+        planes = trial;
+        current = c;
+        steps += 1;
+        if settled {
+            break;
+        }
+    }
+    // The scale no term fixes: the median inverse depth at the crossings as before.
+    let inverse_depth = |v: &[Vector3<f64>]| {
+        super::median(
+            evidence
+                .rows
+                .iter()
+                .map(|&(a, b, u)| 0.5 * (v[a] + v[b]).dot(&u))
+                .collect(),
+        )
+        .filter(|m| m.is_finite() && *m > 0.0)
+    };
+    let rescale = inverse_depth(&start)? / inverse_depth(&planes)?;
+    for (v, &c) in planes.iter().zip(&curve_of) {
+        solution.planes[c] = Some(v * rescale);
+    }
+    Some(JointFit {
+        planes: m,
+        crossings: evidence.rows.len(),
+        crosses: evidence.crosses.len(),
+        steps,
+        cost_before,
+        cost_after: current,
+    })
+}
+
+/// Per plane, a prior on the directions its own crossings fix least (below
+/// [`WEAK_FRACTION`] of the best), as strong as that fraction: a plane whose
+/// crossings lie on one image line keeps its turn.
+fn weak_prior(evidence: &Evidence, start: &[Vector3<f64>]) -> Vec<Matrix3<f64>> {
+    let mut info = vec![Matrix3::zeros(); start.len()];
+    for &(a, b, u) in &evidence.rows {
+        if let Some(j) = sampson_jacobian(&(start[a] - start[b]), &u) {
+            let jj = j * j.transpose() / (evidence.sigma * evidence.sigma);
+            info[a] += jj;
+            info[b] += jj;
+        }
+    }
+    info.iter()
+        .map(|h| {
+            let eig = SymmetricEigen::new(*h);
+            let floor = WEAK_FRACTION * eig.eigenvalues.max().max(0.0);
+            let mut q = Matrix3::zeros();
+            for i in 0..3 {
+                if eig.eigenvalues[i] < floor {
+                    let e = eig.eigenvectors.column(i);
+                    q += e * e.transpose() * floor;
+                }
+            }
+            q
+        })
+        .collect()
+}
+
+/// Cosine of the angle between two planes' normals.
+fn cosine(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
+    a.dot(b) / (a.norm() * b.norm())
+}
+
+/// Huber's loss of a residual in units of the noise (`r²` within [`HUBER_K`]).
+fn huber(r: f64) -> f64 {
+    if r.abs() <= HUBER_K {
+        r * r
+    } else {
+        2.0 * HUBER_K * r.abs() - HUBER_K * HUBER_K
+    }
+}
+
+/// Gradient of the Sampson residual `e = d·u / |d_xy|` with respect to `d = v_a − v_b`.
+fn sampson_jacobian(d: &Vector3<f64>, u: &Vector3<f64>) -> Option<Vector3<f64>> {
+    let g = d.x.hypot(d.y);
+    if g == 0.0 || !g.is_finite() {
+        return None;
+    }
+    let e = d.dot(u);
+    Some(u / g - Vector3::new(d.x, d.y, 0.0) * (e / (g * g * g)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solve::synthetic::{analytic_crossings, random_scan, Rng, ScanSpec};
+    use crate::solve::FitContext;
+
+    /// Largest relative depth error at the crossings of `planes` against `truth`,
+    /// after the best global scale (the median ratio).
+    fn worst_depth_error(
+        planes: &[Option<Vector3<f64>>],
+        truth: &[Vector3<f64>],
+        crossings: &[crate::intersect::Crossing],
+    ) -> f64 {
+        let ratios: Vec<(f64, f64)> = crossings
+            .iter()
+            .flat_map(|c| [c.a, c.b])
+            .zip(crossings.iter().flat_map(|c| [c.u, c.u]))
+            .filter_map(|(i, u)| {
+                let u = Vector3::new(u[0], u[1], 1.0);
+                let v = planes[i as usize]?;
+                Some((truth[i as usize].dot(&u), v.dot(&u)))
+            })
+            .collect();
+        let k =
+            super::super::median(ratios.iter().map(|(t, v)| v / t).collect()).expect("crossings");
+        ratios
+            .iter()
+            .map(|(t, v)| (t * k / v - 1.0).abs())
+            .fold(0.0, f64::max)
+    }
+
+    /// Planes off the truth by a common shift `w` (1 % of the inverse depth, the error
+    /// that grows with depth) and by noise of their own: the crossings cannot see the
+    /// shift, the crosses' orthogonality can, and only once each plane may move too.
+    #[test]
+    fn a_common_shift_and_plane_noise_are_refined_away() {
+        let scan = random_scan(&ScanSpec {
+            num_crosses: 30,
+            seed: 5,
+            ..ScanSpec::default()
+        });
+        let crossings = analytic_crossings(&scan.scene, &scan.planes, 0.1);
+        let median_inverse_depth =
+            super::super::median(scan.planes.iter().map(|v| v.norm()).collect()).expect("planes");
+        let w = Vector3::new(0.6, -0.3, 0.74).normalize() * (0.01 * median_inverse_depth);
+        let mut rng = Rng::new(11);
+        let mut sol = Solution::empty();
+        sol.planes = scan
+            .planes
+            .iter()
+            .map(|v| {
+                let noise = Vector3::new(rng.normal(), rng.normal(), rng.normal());
+                Some(v + w + noise * (2e-3 * v.norm()))
+            })
+            .collect();
+        sol.fit_context = Some(FitContext::for_tests(1.0, 1e-2));
+        let problem = Problem {
+            num_curves: scan.planes.len(),
+            crossings: &crossings,
+            partner: &scan.partner,
+            focal_px: 1000.0,
+        };
+        let before = worst_depth_error(&sol.planes, &scan.planes, &crossings);
+        let fit =
+            refine_jointly(&problem, &vec![true; crossings.len()], &mut sol, 20).expect("refined");
+        let after = worst_depth_error(&sol.planes, &scan.planes, &crossings);
+        assert!(before > 0.005, "the start is off: {before}");
+        // What remains is the planes' noise in the directions their own crossings
+        // barely fix, which the weak prior holds.
+        assert!(
+            after < before / 50.0 && after < 1e-3,
+            "{before} -> {after} ({fit:?})"
+        );
+        assert_eq!(fit.crosses, 30);
+        assert!(fit.cost_after < fit.cost_before);
+
+        // Nothing to refine without a fit context, or with no step allowed.
+        let mut bare = Solution::empty();
+        bare.planes = sol.planes.clone();
+        assert!(refine_jointly(&problem, &vec![true; crossings.len()], &mut bare, 20).is_none());
+        assert!(refine_jointly(&problem, &vec![true; crossings.len()], &mut sol, 0).is_none());
+    }
+}
