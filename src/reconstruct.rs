@@ -229,8 +229,9 @@ pub struct StageTimes {
 /// What a reconstruction found; serialised as the `--report` JSON (with `version`).
 /// Within a version keys are only ever added (`crossings_in_solve`,
 /// `crossings_off_surface`, `planes_too_uncertain`, `planes_from_faint_crossings`, the
-/// `triangulation.inconsistent_*` counts and `triangulation.curve_ends` came later in
-/// version 1); readers should ignore keys they do not know.
+/// `triangulation.inconsistent_*` counts, `triangulation.curve_ends` and
+/// `joint_refinement` came later in version 1); readers should ignore keys they do not
+/// know.
 #[derive(Clone, Debug, Serialize)]
 pub struct ReconstructReport {
     pub version: u32,
@@ -262,6 +263,11 @@ pub struct ReconstructReport {
     /// sheet under water), fitted afterwards from their crossings of any strength with
     /// the solved planes.
     pub planes_from_faint_crossings: usize,
+    /// The refinement of every plane together (`solve.joint_refinement_steps`): planes,
+    /// crossings and crosses it used, its accepted steps and its cost before and after
+    /// (squared residuals in units of their own spread, Huber's loss). `null` when
+    /// skipped (true planes, 0 steps, too little to refine).
+    pub joint_refinement: Option<solve::joint::JointFit>,
     pub residual_rms: f64,
     pub orthogonality_rms_deg: f64,
     pub focal_scale: f64,
@@ -782,6 +788,7 @@ pub fn reconstruct_curves(
         focal_px: camera.fx.max(camera.fy),
     };
     let mut motion_fill = solve::motion::MotionFill::default();
+    let mut joint = None;
     let mut faint_planes = 0;
     let solution: Solution = match source {
         PlaneSource::SelfCalibrated => {
@@ -854,7 +861,7 @@ pub fn reconstruct_curves(
                     *u = false;
                 }
             }
-            let joint = solve::joint::refine_jointly(
+            joint = solve::joint::refine_jointly(
                 &problem,
                 &not_rejected,
                 &mut sol,
@@ -1028,6 +1035,7 @@ pub fn reconstruct_curves(
         rejected_crossings: solution.rejected_crossings.len(),
         rejected_planes: solution.rejected_curves.len(),
         planes_fixed_by_motion: motion_fill.filled,
+        joint_refinement: joint,
         planes_too_uncertain: solution.uncertain_planes,
         planes_from_faint_crossings: faint_planes,
         residual_rms: solution.residual_rms,

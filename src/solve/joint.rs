@@ -28,7 +28,7 @@ use super::nullspace::sampson;
 use super::{Problem, Solution};
 
 /// What [`refine_jointly`] did.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct JointFit {
     /// Planes refined together.
     pub planes: usize,
