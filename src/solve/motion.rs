@@ -277,7 +277,7 @@ fn extend_around_solved(
     (planes, rc, rv)
 }
 
-/// The prior plane of `frame` as a unit homogeneous plane `(n, −1)/|(n, −1)|`, up to
+/// The prior plane of `frame` as a unit homogeneous plane `(v, −1)/|(v, −1)|`, up to
 /// sign: linear interpolation between the nearest solved planes of this laser before
 /// and after (each at most `max_gap` frames away), or the one of them that exists.
 ///
