@@ -42,6 +42,11 @@ pub struct JointFit {
     pub cost_after: f64,
 }
 
+/// Fewest crosses for the refinement: their spread weighs them, and the orthogonality
+/// fit before has already set four unknowns (the shift and the focal scale) from them,
+/// so that a handful fit exactly and would say nothing of their noise.
+const MIN_CROSSES: usize = 8;
+
 /// Huber's threshold, in units of the noise.
 const HUBER_K: f64 = 2.0;
 
@@ -214,7 +219,7 @@ pub fn refine_jointly(
             (p > c).then_some((solved(c)?, solved(p)?))
         })
         .collect();
-    if m < 4 || rows.len() < 3 * m || crosses.is_empty() {
+    if m < 4 || rows.len() < 3 * m || crosses.len() < MIN_CROSSES {
         return None;
     }
     // The noise of each kind from the current residuals, so that the two kinds of
@@ -441,5 +446,17 @@ mod tests {
         bare.planes = sol.planes.clone();
         assert!(refine_jointly(&problem, &vec![true; crossings.len()], &mut bare, 20).is_none());
         assert!(refine_jointly(&problem, &vec![true; crossings.len()], &mut sol, 0).is_none());
+        // Nor from so few crosses that the orthogonality fit before fitted them exactly.
+        let few: Vec<Option<u32>> = scan
+            .partner
+            .iter()
+            .enumerate()
+            .map(|(c, p)| p.filter(|_| c < 2 * (MIN_CROSSES - 1)))
+            .collect();
+        let sparse = Problem {
+            partner: &few,
+            ..problem
+        };
+        assert!(refine_jointly(&sparse, &vec![true; crossings.len()], &mut sol, 20).is_none());
     }
 }
