@@ -866,6 +866,7 @@ pub fn reconstruct_curves(
                 &not_rejected,
                 &mut sol,
                 config.solve.joint_refinement_steps,
+                config.solve.estimate_focal,
             );
             tracing::debug!(?joint, "planes refined together");
             let sequence: Vec<(u32, u8)> = planes.iter().map(|p| (p.frame, p.laser)).collect();

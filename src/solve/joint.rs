@@ -2,24 +2,28 @@
 //!
 //! The global solve fixes the planes of its subset from the algebraic null vector of
 //! the coplanarity system, and the orthogonality of their crosses fixes the shift `w`
-//! of that family; every other plane is then fitted with those held fixed. Each step
-//! is sound, but none weighs all the evidence at once: the shift is set by the crosses
-//! alone with the planes held as they are, so the planes' own noise goes into it
-//! whole, and a shift off by 1 % of the inverse depth makes the depth error grow with
-//! depth.
+//! of that family (and the focal scale, when it is estimated); every other plane is
+//! then fitted with those held fixed. Each step is sound, but none weighs all the
+//! evidence at once: the shift is set by the crosses alone with the planes held as
+//! they are, so the planes' own noise goes into it whole, and a shift off by 1 % of
+//! the inverse depth makes the depth error grow with depth.
 //!
 //! Here all solved planes move together, minimising
 //!
 //! ```text
-//!   Σ_crossings ρ(e_k / σ_img)  +  Σ_crosses (cos θ_ab / σ_ortho)²  +  Σ_planes |v_i − v_i⁰|²_Q_i
+//!   Σ_crossings ρ(e_k / σ_img)  +  Σ_crosses ρ(cos θ_ab / σ_ortho)  +  Σ_planes |v_i − v_i⁰|²_Q_i
 //! ```
 //!
 //! with `e_k` the Sampson residual of crossing `k` (image units), `ρ` Huber's loss,
 //! `cos θ_ab` the cosine between the two planes of a cross, and `Q_i` a weak prior
 //! that holds only the directions a plane's own crossings leave unfixed (a plane
 //! whose crossings lie on one image line keeps the turn the motion prior gave it).
-//! Gauss–Newton with Levenberg–Marquardt damping; the global scale, which no term
-//! fixes, is restored afterwards to the median inverse depth at the crossings used.
+//! Each kind of residual is weighed by its robust spread, measured at the start and
+//! again after a first pass. With the focal scale estimated it is one more unknown,
+//! through the rays of the crossings; its deviation is a jackknife of the refinement
+//! and no smaller than the refinement's move. Gauss–Newton with Levenberg–Marquardt
+//! damping on a dense system of three unknowns a plane; the global scale, which no
+//! term fixes, is restored afterwards to the median inverse depth at the crossings.
 
 use faer::Mat;
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
@@ -71,10 +75,23 @@ struct Evidence {
 }
 
 impl Evidence {
-    /// The cost of `planes` (each plane's prior `q` about `start`).
-    fn cost(&self, planes: &[Vector3<f64>], start: &[Vector3<f64>], q: &[Matrix3<f64>]) -> f64 {
+    /// Ray of crossing row `u` (focal-corrected at the start) at the focal ratio `r`
+    /// to the start's.
+    fn ray(u: &Vector3<f64>, r: f64) -> Vector3<f64> {
+        Vector3::new(u.x / r, u.y / r, 1.0)
+    }
+
+    /// The cost of `planes` at focal ratio `r` (each plane's prior `q` about `start`).
+    fn cost(
+        &self,
+        planes: &[Vector3<f64>],
+        r: f64,
+        start: &[Vector3<f64>],
+        q: &[Matrix3<f64>],
+    ) -> f64 {
         let mut total = 0.0;
         for &(a, b, u) in &self.rows {
+            let u = Self::ray(&u, r);
             if let Some((e, _)) = sampson(&planes[a], &planes[b], [u.x, u.y]) {
                 total += huber(e / self.sigma);
             }
@@ -89,60 +106,56 @@ impl Evidence {
         total
     }
 
-    /// Gauss–Newton normal equations at `planes`: `H` (dense, 3 unknowns per plane)
-    /// and the gradient `g`, Huber's weights applied.
+    /// Gauss–Newton normal equations at `planes` and focal ratio `r`: `H` (dense, 3
+    /// unknowns per plane, then the ratio when `focal`) and the gradient `g`, Huber's
+    /// weights applied.
     fn normal_equations(
         &self,
         planes: &[Vector3<f64>],
+        r: f64,
+        focal: bool,
         start: &[Vector3<f64>],
         q: &[Matrix3<f64>],
     ) -> (Mat<f64>, Vec<f64>) {
-        let dim = 3 * planes.len();
+        let dim = 3 * planes.len() + usize::from(focal);
         let mut h = Mat::<f64>::zeros(dim, dim);
         let mut g = vec![0.0; dim];
-        let add = |h: &mut Mat<f64>,
-                   g: &mut [f64],
-                   (i, ji): (usize, Vector3<f64>),
-                   (j, jj): (usize, Vector3<f64>),
-                   w: f64,
-                   r: f64| {
-            for x in 0..3 {
-                for y in 0..3 {
-                    h[(3 * i + x, 3 * j + y)] += w * ji[x] * jj[y];
-                }
-            }
-            if i == j {
-                for x in 0..3 {
-                    g[3 * i + x] += w * ji[x] * r;
-                }
-            }
-        };
-        let term = |h: &mut Mat<f64>,
-                    g: &mut [f64],
-                    a: (usize, Vector3<f64>),
-                    b: (usize, Vector3<f64>),
-                    r: f64,
-                    sigma: f64| {
-            let z = r / sigma;
+        // One residual `res` of noise `sigma` with its non-zero derivatives.
+        let mut term = |entries: &[(usize, f64)], res: f64, sigma: f64| {
+            let z = res / sigma;
             let w = if z.abs() <= HUBER_K {
                 1.0
             } else {
                 HUBER_K / z.abs()
             } / (sigma * sigma);
-            add(h, g, a, a, w, r);
-            add(h, g, b, b, w, r);
-            add(h, g, a, b, w, r);
-            add(h, g, b, a, w, r);
+            for &(i, ji) in entries {
+                g[i] += w * ji * res;
+                for &(j, jj) in entries {
+                    h[(i, j)] += w * ji * jj;
+                }
+            }
         };
-        for &(a, b, u) in &self.rows {
+        let lam = 3 * planes.len();
+        let mut entries: Vec<(usize, f64)> = Vec::with_capacity(7);
+        for &(a, b, u0) in &self.rows {
+            let u = Self::ray(&u0, r);
             let d = planes[a] - planes[b];
-            let (Some(j), Some((e, _))) = (
+            let (Some(j), Some((e, inv_g))) = (
                 sampson_jacobian(&d, &u),
                 sampson(&planes[a], &planes[b], [u.x, u.y]),
             ) else {
                 continue;
             };
-            term(&mut h, &mut g, (a, j), (b, -j), e, self.sigma);
+            entries.clear();
+            for x in 0..3 {
+                entries.push((3 * a + x, j[x]));
+                entries.push((3 * b + x, -j[x]));
+            }
+            if focal {
+                // ∂u/∂r = −(u.x, u.y, 0)/r.
+                entries.push((lam, -(d.x * u.x + d.y * u.y) / r * inv_g));
+            }
+            term(&entries, e, self.sigma);
         }
         for &(a, b) in &self.crosses {
             let (va, vb) = (planes[a], planes[b]);
@@ -150,7 +163,12 @@ impl Evidence {
             let c = cosine(&va, &vb);
             let ja = vb / (na * nb) - va * (c / (na * na));
             let jb = va / (na * nb) - vb * (c / (nb * nb));
-            term(&mut h, &mut g, (a, ja), (b, jb), c, self.sigma_ortho);
+            entries.clear();
+            for x in 0..3 {
+                entries.push((3 * a + x, ja[x]));
+                entries.push((3 * b + x, jb[x]));
+            }
+            term(&entries, c, self.sigma_ortho);
         }
         for (i, ((v, v0), q)) in planes.iter().zip(start).zip(q).enumerate() {
             let pg = q * (v - v0);
@@ -168,13 +186,14 @@ impl Evidence {
 /// Refines every solved plane of `solution` together over the `usable` crossings of
 /// `problem` (those among solved planes that the current planes keep as inliers) and
 /// the crosses of solved partners that are not outliers; at most `max_steps` accepted
-/// steps. `None` (planes as they were) when the solution has no fit context or too
-/// little to refine.
+/// steps a pass, the focal scale too when `focal` (with a new deviation). `None`
+/// (planes as they were) when the solution has no fit context or too little to refine.
 pub fn refine_jointly(
     problem: &Problem,
     usable: &[bool],
     solution: &mut Solution,
     max_steps: usize,
+    focal: bool,
 ) -> Option<JointFit> {
     let ctx = solution.fit_context?;
     if max_steps == 0 {
@@ -233,7 +252,7 @@ pub fn refine_jointly(
         .into_iter()
         .filter(|&(a, b)| cosine(&start[a], &start[b]).abs() <= ctx.outlier_k * sigma_ortho)
         .collect();
-    let evidence = Evidence {
+    let mut evidence = Evidence {
         rows,
         crosses,
         sigma,
@@ -241,13 +260,91 @@ pub fn refine_jointly(
     };
     let q = weak_prior(&evidence, &start);
 
-    let mut planes = start.clone();
-    let cost_before = evidence.cost(&planes, &start, &q);
-    let mut current = cost_before;
+    let cost_before = evidence.cost(&start, 1.0, &start, &q);
+    let state = (start.clone(), 1.0, cost_before, 0);
+    let (mut planes, mut ratio, mut current, mut steps) =
+        minimise(&evidence, state, focal, &start, &q, max_steps);
+    // The spreads again at the result, and a second pass with them: the first ones
+    // hold whatever the refinement then took away (with the focal scale free, a
+    // shared tilt of every cross).
+    if let (Some(sigma), Some(sigma_ortho)) = (
+        spread(evidence.rows.iter().filter_map(|&(a, b, u)| {
+            let u = Evidence::ray(&u, ratio);
+            sampson(&planes[a], &planes[b], [u.x, u.y]).map(|(e, _)| e)
+        })),
+        spread(
+            evidence
+                .crosses
+                .iter()
+                .map(|&(a, b)| cosine(&planes[a], &planes[b])),
+        ),
+    ) {
+        evidence.sigma = sigma;
+        evidence.sigma_ortho = sigma_ortho;
+        let cost = evidence.cost(&planes, ratio, &start, &q);
+        (planes, ratio, current, steps) = minimise(
+            &evidence,
+            (planes, ratio, cost, steps),
+            focal,
+            &start,
+            &q,
+            max_steps,
+        );
+    }
+    // Both costs in the units of the last spreads.
+    let cost_before = evidence.cost(&start, 1.0, &start, &q);
+    // The scale no term fixes: the median inverse depth at the crossings as before.
+    let inverse_depth = |v: &[Vector3<f64>], r: f64| {
+        super::median(
+            evidence
+                .rows
+                .iter()
+                .map(|&(a, b, u)| 0.5 * (v[a] + v[b]).dot(&Evidence::ray(&u, r)))
+                .collect(),
+        )
+        .filter(|m| m.is_finite() && *m > 0.0)
+    };
+    let rescale = inverse_depth(&start, 1.0)? / inverse_depth(&planes, ratio)?;
+    for (v, &c) in planes.iter().zip(&curve_of) {
+        solution.planes[c] = Some(v * rescale);
+    }
+    if focal {
+        // The replicates' spread, and no less than the refinement's own move: the two
+        // estimates see the same data, so their difference is a part of the error that
+        // neither jackknife sees (the weighting, the model), and it is not claimed away.
+        if let Some(std) = focal_jackknife(&evidence, &planes, ratio, &start, &q) {
+            solution.focal_scale_std = Some(solution.focal_scale * std.hypot(ratio - 1.0));
+        }
+    }
+    solution.focal_scale *= ratio;
+    Some(JointFit {
+        planes: m,
+        crossings: evidence.rows.len(),
+        crosses: evidence.crosses.len(),
+        steps,
+        cost_before,
+        cost_after: current,
+    })
+}
+
+/// Where the cost is and how it got there: planes, focal ratio, cost, steps.
+type State = (Vec<Vector3<f64>>, f64, f64, usize);
+
+/// Levenberg–Marquardt from `state` (its steps counted on) for at most `max_steps`
+/// more accepted steps, or until the cost settles; the ratio moves only if `focal`.
+fn minimise(
+    evidence: &Evidence,
+    state: State,
+    focal: bool,
+    start: &[Vector3<f64>],
+    q: &[Matrix3<f64>],
+    max_steps: usize,
+) -> State {
+    let (mut planes, mut ratio, mut current, mut steps) = state;
+    let limit = steps + max_steps;
     let mut mu = 1e-4;
-    let mut steps = 0;
-    while steps < max_steps {
-        let (mut h, g) = evidence.normal_equations(&planes, &start, &q);
+    while steps < limit {
+        let (mut h, g) = evidence.normal_equations(&planes, ratio, focal, start, q);
         let diagonal: Vec<f64> = (0..h.nrows()).map(|i| h[(i, i)]).collect();
         let mut next = None;
         // Levenberg–Marquardt: more damping until a step lowers the cost. The damping
@@ -269,48 +366,76 @@ pub fn refine_jointly(
                     v + Vector3::new(step[(3 * i, 0)], step[(3 * i + 1, 0)], step[(3 * i + 2, 0)])
                 })
                 .collect();
-            let c = evidence.cost(&trial, &start, &q);
-            if c.is_finite() && c < current {
-                next = Some((trial, c));
+            let trial_ratio = if focal {
+                ratio + step[(g.len() - 1, 0)]
+            } else {
+                ratio
+            };
+            let c = evidence.cost(&trial, trial_ratio, start, q);
+            if c.is_finite() && c < current && trial_ratio > 0.0 {
+                next = Some((trial, trial_ratio, c));
                 mu = (mu / 3.0).max(1e-12);
                 break;
             }
             mu *= 10.0;
         }
-        let Some((trial, c)) = next else {
+        let Some((trial, trial_ratio, c)) = next else {
             break;
         };
         let settled = current - c < 1e-7 * current;
         planes = trial;
+        ratio = trial_ratio;
         current = c;
         steps += 1;
         if settled {
             break;
         }
     }
-    // The scale no term fixes: the median inverse depth at the crossings as before.
-    let inverse_depth = |v: &[Vector3<f64>]| {
-        super::median(
-            evidence
-                .rows
-                .iter()
-                .map(|&(a, b, u)| 0.5 * (v[a] + v[b]).dot(&u))
+    (planes, ratio, current, steps)
+}
+
+/// Standard deviation of the refined focal ratio by the delete-a-group jackknife, as
+/// the solve's own (`focal_jackknife_std`): [`super::JACKKNIFE_GROUPS`] replicates,
+/// each without one group of the crossings and crosses (every tenth, by a hash of its
+/// index), each one Gauss–Newton step from the refined planes (the cost is nearly
+/// quadratic there), and the replicates' robust spread times `√(K − 1)`. It carries
+/// the planes' noise; systematic errors (a bias of the stripe centres) are not in it.
+fn focal_jackknife(
+    evidence: &Evidence,
+    planes: &[Vector3<f64>],
+    ratio: f64,
+    start: &[Vector3<f64>],
+    q: &[Matrix3<f64>],
+) -> Option<f64> {
+    let k = super::JACKKNIFE_GROUPS;
+    let group = |i: usize| (super::mix64(i as u64) % k as u64) as usize;
+    let offset = evidence.rows.len();
+    let mut ratios = Vec::with_capacity(k);
+    for g in 0..k {
+        let part = Evidence {
+            rows: (0..evidence.rows.len())
+                .filter(|&i| group(i) != g)
+                .map(|i| evidence.rows[i])
                 .collect(),
-        )
-        .filter(|m| m.is_finite() && *m > 0.0)
-    };
-    let rescale = inverse_depth(&start)? / inverse_depth(&planes)?;
-    for (v, &c) in planes.iter().zip(&curve_of) {
-        solution.planes[c] = Some(v * rescale);
+            crosses: (0..evidence.crosses.len())
+                .filter(|&i| group(offset + i) != g)
+                .map(|i| evidence.crosses[i])
+                .collect(),
+            ..*evidence
+        };
+        let (mut h, grad) = part.normal_equations(planes, ratio, true, start, q);
+        let dim = h.nrows();
+        for i in 0..dim {
+            h[(i, i)] *= 1.0 + 1e-9;
+        }
+        let llt = h.llt(faer::Side::Lower).ok()?;
+        let mut step = Mat::<f64>::from_fn(dim, 1, |i, _| -grad[i]);
+        faer::linalg::solvers::Solve::solve_in_place(&llt, step.as_mut());
+        ratios.push(ratio + step[(dim - 1, 0)]);
     }
-    Some(JointFit {
-        planes: m,
-        crossings: evidence.rows.len(),
-        crosses: evidence.crosses.len(),
-        steps,
-        cost_before,
-        cost_after: current,
-    })
+    let mid = super::median(ratios.clone())?;
+    let mad = super::median(ratios.iter().map(|r| (r - mid).abs()).collect())?;
+    Some(super::MAD_TO_SIGMA * mad * ((k - 1) as f64).sqrt()).filter(|s| s.is_finite())
 }
 
 /// Per plane, a prior on the directions its own crossings fix least (below
@@ -428,8 +553,8 @@ mod tests {
             focal_px: 1000.0,
         };
         let before = worst_depth_error(&sol.planes, &scan.planes, &crossings);
-        let fit =
-            refine_jointly(&problem, &vec![true; crossings.len()], &mut sol, 20).expect("refined");
+        let fit = refine_jointly(&problem, &vec![true; crossings.len()], &mut sol, 20, false)
+            .expect("refined");
         let after = worst_depth_error(&sol.planes, &scan.planes, &crossings);
         assert!(before > 0.005, "the start is off: {before}");
         // What remains is the planes' noise in the directions their own crossings
@@ -444,8 +569,12 @@ mod tests {
         // Nothing to refine without a fit context, or with no step allowed.
         let mut bare = Solution::empty();
         bare.planes = sol.planes.clone();
-        assert!(refine_jointly(&problem, &vec![true; crossings.len()], &mut bare, 20).is_none());
-        assert!(refine_jointly(&problem, &vec![true; crossings.len()], &mut sol, 0).is_none());
+        assert!(
+            refine_jointly(&problem, &vec![true; crossings.len()], &mut bare, 20, false).is_none()
+        );
+        assert!(
+            refine_jointly(&problem, &vec![true; crossings.len()], &mut sol, 0, false).is_none()
+        );
         // Nor from so few crosses that the orthogonality fit before fitted them exactly.
         let few: Vec<Option<u32>> = scan
             .partner
@@ -457,6 +586,56 @@ mod tests {
             partner: &few,
             ..problem
         };
-        assert!(refine_jointly(&sparse, &vec![true; crossings.len()], &mut sol, 20).is_none());
+        assert!(
+            refine_jointly(&sparse, &vec![true; crossings.len()], &mut sol, 20, false).is_none()
+        );
+    }
+
+    /// A focal scale 0.5 % off (the given planes right, as the crossings fix them): the
+    /// crosses' orthogonality pulls the scale back, with a deviation that covers the
+    /// move, and only when the scale is free.
+    #[test]
+    fn a_focal_scale_off_by_half_a_percent_is_refined() {
+        let scan = random_scan(&ScanSpec {
+            num_crosses: 30,
+            seed: 7,
+            ..ScanSpec::default()
+        });
+        // Crossings with noise (0.1 px at a focal length of 1000 px): the noise sets
+        // the weights, and exact ones would weigh without bound.
+        let mut rng = Rng::new(3);
+        let mut crossings = analytic_crossings(&scan.scene, &scan.planes, 0.1);
+        for c in &mut crossings {
+            c.u[0] += 1e-4 * rng.normal();
+            c.u[1] += 1e-4 * rng.normal();
+        }
+        let lambda = 1.005;
+        let mut sol = Solution::empty();
+        // Planes in the coordinates corrected by the wrong scale: the given ones are
+        // the true ones (the true scale is 1).
+        sol.planes = scan
+            .planes
+            .iter()
+            .map(|g| Some(Vector3::new(g.x * lambda, g.y * lambda, g.z)))
+            .collect();
+        sol.focal_scale = lambda;
+        sol.fit_context = Some(FitContext {
+            focal_scale: lambda,
+            ..FitContext::for_tests(1.0, 1e-2)
+        });
+        let problem = Problem {
+            num_curves: scan.planes.len(),
+            crossings: &crossings,
+            partner: &scan.partner,
+            focal_px: 1000.0,
+        };
+        let all = vec![true; crossings.len()];
+        let mut fixed = sol.clone();
+        refine_jointly(&problem, &all, &mut fixed, 20, false).expect("refined");
+        assert_eq!(fixed.focal_scale, lambda, "the scale moves only when asked");
+        refine_jointly(&problem, &all, &mut sol, 20, true).expect("refined");
+        assert!((sol.focal_scale - 1.0).abs() < 1e-3, "{}", sol.focal_scale);
+        let std = sol.focal_scale_std.expect("a deviation");
+        assert!((0.004..0.01).contains(&std), "{std}");
     }
 }

@@ -155,8 +155,9 @@ pub struct SolveParams {
     pub uncertain_plane_ratio: f64,
     /// Gauss–Newton steps of the final refinement of every solved plane together
     /// ([`joint`]): crossings and the orthogonality of every cross weighed at once, so
-    /// that the common shift `w` is not set by the crosses with the planes held as
-    /// they are. 0 leaves the planes as the stages before give them.
+    /// that the common shift `w` (and an estimated focal scale) is not set by the
+    /// crosses with the planes held as they are. 0 leaves the planes as the stages
+    /// before give them.
     pub joint_refinement_steps: usize,
 }
 
