@@ -58,10 +58,11 @@ const HUBER_K: f64 = 2.0;
 /// of its best-fixed direction's is held by the prior.
 const WEAK_FRACTION: f64 = 1e-4;
 
-/// Robust spread (1.4826 × the median absolute value) of residuals.
+/// Robust spread (1.4826 × the median absolute value, [`super::MAD_TO_SIGMA`]) of
+/// residuals.
 fn spread(values: impl Iterator<Item = f64>) -> Option<f64> {
     super::median(values.map(f64::abs).collect())
-        .map(|m| 1.4826 * m)
+        .map(|m| super::MAD_TO_SIGMA * m)
         .filter(|s| s.is_finite() && *s > 0.0)
 }
 
