@@ -855,15 +855,9 @@ pub fn reconstruct_curves(
             };
             // Every plane solved so far refined together; the planes given afterwards
             // (the motion prior's, from faint crossings, refitted) follow them.
-            let mut not_rejected = vec![true; problem.crossings.len()];
-            for &k in &sol.rejected_crossings {
-                if let Some(u) = not_rejected.get_mut(k) {
-                    *u = false;
-                }
-            }
             joint = solve::joint::refine_jointly(
                 &problem,
-                &not_rejected,
+                &sol.not_rejected(problem.crossings.len()),
                 &mut sol,
                 config.solve.joint_refinement_steps,
                 config.solve.estimate_focal,

@@ -245,6 +245,17 @@ impl Solution {
             .collect()
     }
 
+    /// Which of the `count` crossings it was solved from it did not reject.
+    pub fn not_rejected(&self, count: usize) -> Vec<bool> {
+        let mut usable = vec![true; count];
+        for &k in &self.rejected_crossings {
+            if let Some(u) = usable.get_mut(k) {
+                *u = false;
+            }
+        }
+        usable
+    }
+
     /// A solution with no plane solved (focal scale 1, zero residuals).
     pub fn empty() -> Self {
         Self {

@@ -64,17 +64,6 @@ const MAX_RELATIVE_DEPTH_OWN_TURN: f64 = 0.02;
 /// Below it their offsets are noise; above it, the agreement checks judge the fit.
 const MIN_TURN_SPREAD: f64 = 1e-9;
 
-/// Which of `problem`'s crossings `solution` did not reject.
-fn not_rejected(problem: &Problem, solution: &Solution) -> Vec<bool> {
-    let mut usable = vec![true; problem.crossings.len()];
-    for &k in &solution.rejected_crossings {
-        if let Some(u) = usable.get_mut(k) {
-            *u = false;
-        }
-    }
-    usable
-}
-
 /// Fills unsolved planes that have at least three `usable` crossings with solved
 /// planes (at an angle whose sine is at least the solve's `min_sin_angle`), using
 /// `sequence[c] = (frame, laser)` of every curve for the prior. Planes and crossings
@@ -180,7 +169,7 @@ pub fn fill_and_extend(
     }
     let mut total = fill_free_turns(
         problem,
-        &not_rejected(problem, solution),
+        &solution.not_rejected(problem.crossings.len()),
         solution,
         sequence,
         max_gap,
@@ -191,8 +180,12 @@ pub fn fill_and_extend(
     if total.filled == 0 {
         return total;
     }
-    let (given, rc, rv) =
-        extend_around_solved(problem, &not_rejected(problem, solution), solution, &ctx);
+    let (given, rc, rv) = extend_around_solved(
+        problem,
+        &solution.not_rejected(problem.crossings.len()),
+        solution,
+        &ctx,
+    );
     solution.rejected_crossings.extend(rc);
     solution.rejected_crossings.sort_unstable();
     solution.rejected_crossings.dedup();
@@ -206,7 +199,7 @@ pub fn fill_and_extend(
     }
     let again = fill_free_turns(
         problem,
-        &not_rejected(problem, solution),
+        &solution.not_rejected(problem.crossings.len()),
         solution,
         sequence,
         max_gap,
