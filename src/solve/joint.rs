@@ -82,6 +82,21 @@ impl Evidence {
         Vector3::new(u.x / r, u.y / r, 1.0)
     }
 
+    /// The robust spreads of the crossings' Sampson residuals and of the crosses'
+    /// cosines at `planes` and focal ratio `r`.
+    fn spreads(&self, planes: &[Vector3<f64>], r: f64) -> Option<(f64, f64)> {
+        let sigma = spread(self.rows.iter().filter_map(|&(a, b, u)| {
+            let u = Self::ray(&u, r);
+            sampson(&planes[a], &planes[b], [u.x, u.y]).map(|(e, _)| e)
+        }))?;
+        let sigma_ortho = spread(
+            self.crosses
+                .iter()
+                .map(|&(a, b)| cosine(&planes[a], &planes[b])),
+        )?;
+        Some((sigma, sigma_ortho))
+    }
+
     /// The cost of `planes` at focal ratio `r` (each plane's prior `q` about `start`).
     fn cost(
         &self,
@@ -244,21 +259,17 @@ pub fn refine_jointly(
     }
     // The noise of each kind from the current residuals, so that the two kinds of
     // evidence weigh as their scatter says; crosses beyond the outlier bound stay out.
-    let sigma = spread(
-        rows.iter()
-            .filter_map(|&(a, b, u)| sampson(&start[a], &start[b], [u.x, u.y]).map(|(e, _)| e)),
-    )?;
-    let sigma_ortho = spread(crosses.iter().map(|&(a, b)| cosine(&start[a], &start[b])))?;
-    let crosses: Vec<(usize, usize)> = crosses
-        .into_iter()
-        .filter(|&(a, b)| cosine(&start[a], &start[b]).abs() <= ctx.outlier_k * sigma_ortho)
-        .collect();
     let mut evidence = Evidence {
         rows,
         crosses,
-        sigma,
-        sigma_ortho,
+        sigma: 1.0,
+        sigma_ortho: 1.0,
     };
+    (evidence.sigma, evidence.sigma_ortho) = evidence.spreads(&start, 1.0)?;
+    let bound = ctx.outlier_k * evidence.sigma_ortho;
+    evidence
+        .crosses
+        .retain(|&(a, b)| cosine(&start[a], &start[b]).abs() <= bound);
     let q = weak_prior(&evidence, &start);
 
     let cost_before = evidence.cost(&start, 1.0, &start, &q);
@@ -268,20 +279,8 @@ pub fn refine_jointly(
     // The spreads again at the result, and a second pass with them: the first ones
     // hold whatever the refinement then took away (with the focal scale free, a
     // shared tilt of every cross).
-    if let (Some(sigma), Some(sigma_ortho)) = (
-        spread(evidence.rows.iter().filter_map(|&(a, b, u)| {
-            let u = Evidence::ray(&u, ratio);
-            sampson(&planes[a], &planes[b], [u.x, u.y]).map(|(e, _)| e)
-        })),
-        spread(
-            evidence
-                .crosses
-                .iter()
-                .map(|&(a, b)| cosine(&planes[a], &planes[b])),
-        ),
-    ) {
-        evidence.sigma = sigma;
-        evidence.sigma_ortho = sigma_ortho;
+    if let Some(spreads) = evidence.spreads(&planes, ratio) {
+        (evidence.sigma, evidence.sigma_ortho) = spreads;
         let cost = evidence.cost(&planes, ratio, &start, &q);
         (planes, ratio, current, steps) = minimise(
             &evidence,
@@ -354,12 +353,10 @@ fn minimise(
             for (i, d) in diagonal.iter().enumerate() {
                 h[(i, i)] = d + mu * d.max(f64::MIN_POSITIVE);
             }
-            let Ok(llt) = h.llt(faer::Side::Lower) else {
+            let Some(step) = newton_step(&h, &g) else {
                 mu *= 10.0;
                 continue;
             };
-            let mut step = Mat::<f64>::from_fn(g.len(), 1, |i, _| -g[i]);
-            faer::linalg::solvers::Solve::solve_in_place(&llt, step.as_mut());
             let trial: Vec<Vector3<f64>> = planes
                 .iter()
                 .enumerate()
@@ -393,6 +390,15 @@ fn minimise(
         }
     }
     (planes, ratio, current, steps)
+}
+
+/// The step `−H⁻¹ g` through the Cholesky factor of `h`; `None` if `h` does not
+/// factor.
+fn newton_step(h: &Mat<f64>, g: &[f64]) -> Option<Mat<f64>> {
+    let llt = h.llt(faer::Side::Lower).ok()?;
+    let mut step = Mat::<f64>::from_fn(g.len(), 1, |i, _| -g[i]);
+    faer::linalg::solvers::Solve::solve_in_place(&llt, step.as_mut());
+    Some(step)
 }
 
 /// Standard deviation of the refined focal ratio by the delete-a-group jackknife, as
@@ -429,9 +435,7 @@ fn focal_jackknife(
         for i in 0..dim {
             h[(i, i)] *= 1.0 + 1e-9;
         }
-        let llt = h.llt(faer::Side::Lower).ok()?;
-        let mut step = Mat::<f64>::from_fn(dim, 1, |i, _| -grad[i]);
-        faer::linalg::solvers::Solve::solve_in_place(&llt, step.as_mut());
+        let step = newton_step(&h, &grad)?;
         ratios.push(ratio + step[(dim - 1, 0)]);
     }
     let mid = super::median(ratios.clone())?;
