@@ -107,7 +107,8 @@ fn main() -> anyhow::Result<()> {
         Err(_) => None,
     };
     if let (Some(sv), Ok(_)) = (solved.as_ref(), std::env::var("MISSING")) {
-        let mut miss: Vec<(usize, usize, u8, usize)> = Vec::new();
+        // (points on the surface, frame, laser, strong curves, partner in the cloud)
+        let mut miss: Vec<(usize, usize, u8, usize, bool)> = Vec::new();
         for (f, curves) in per_frame.iter().enumerate() {
             let Some(truth) = sim.truth.frames.get(f) else {
                 continue;
@@ -129,8 +130,7 @@ fn main() -> anyhow::Result<()> {
                     );
                 }
                 if on > 0 {
-                    let partner = usize::from(sv.contains(&(f as u32, 1 - l)));
-                    miss.push((on, f, l, strong * 10 + partner));
+                    miss.push((on, f, l, strong, sv.contains(&(f as u32, 1 - l))));
                 }
             }
         }
@@ -144,7 +144,7 @@ fn main() -> anyhow::Result<()> {
         for m in miss.iter().take(40) {
             println!(
                 "  frame {} laser {}: {} points on the surface, {} strong curves, partner solved {}",
-                m.1, m.2, m.0, m.3 / 10, m.3 % 10
+                m.1, m.2, m.0, m.3, m.4
             );
         }
     }
