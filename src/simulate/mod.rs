@@ -34,7 +34,7 @@
 //! | **`[projector]`** | | | |
 //! | `baseline` | float | 0.2 × distance | rest distance of the laser centre from the camera centre |
 //! | `baseline_direction` | `[x,y,z]` | `[1,0,0]` | direction of that offset in *camera* axes (+X right, +Y down) |
-//! | `wobble` | float | 0.1 × baseline | the centre stays within this radius of its rest position |
+//! | `wobble` | float | 0.1 × baseline | the centre stays within this radius of its (drifting) rest position |
 //! | `wobble_period_frames` | float | 50 | period of the slowest wobble term |
 //! | `fan_deg` | float | 75 | full opening angle of each laser fan |
 //! | `colours` | `[name, name]` | `["red", "green"]` | laser 0 and laser 1: `red`, `green`, `blue` |
@@ -44,6 +44,13 @@
 //! | `sweep_overscan` | float | 1.15 | aim sweep extent relative to the image (> 1: partly off the scene) |
 //! | `roll_deg`, `roll_amplitude_deg` | float | 0, 25 | roll of the cross: mean and sinusoidal amplitude |
 //! | `roll_period_frames` | float | 33 | period of the roll |
+//! | `roll_swing_deg` | float | 0 | amplitude of a slow swing of the roll (added to the above) |
+//! | `roll_swing_period_frames` | float | 300 | its period (the scan's length: one swing there and back) |
+//! | `roll_jitter_deg` | float | 0 | amplitude of a fast roll jitter (three sinusoids, weights 0.5, 0.3, 0.2) |
+//! | `roll_jitter_period_frames` | float | 5 | their periods lie within 0.7-1.3 × this |
+//! | `drift` | float | 0 | the rest centre wanders within this radius: a cubic B-spline through seeded control points uniform in the ball (typical excursion about half of it; step per frame at most 2 × drift / correlation) |
+//! | `drift_correlation_frames` | float | 40 | spacing of those control points, frames |
+//! | `walk_per_frame` | `[x,y,z]` | `[0,0,0]` | steady translation of the rest centre per frame, camera axes (frame 0 at rest) |
 //! | **`[light]`** | | | |
 //! | `ambient` | float | 110 | grey level of white lit face-on by the ambient light |
 //! | `direction` | `[x,y,z]` | `[0.3,-0.5,1]` | world direction towards the ambient light |
@@ -58,7 +65,7 @@
 //! | `forward_blur_mrad` | float | 4 | angular size of that blur |
 //! | `veil` | `[r,g,b]` | `[8,40,48]` | colour of the water column (distant haze) |
 //! | **`[[primitive]]`** | | | one table per surface |
-//! | `shape` | string | required | `plane` (`point`, `normal`), `rectangle` (`corner`, `edge_u`, `edge_v`), `box` (`center`, `size`, optional `rotation_deg` = `[x,y,z]` Euler angles applied x, then y, then z), `cylinder` (`from`, `to`, `radius`, optional `capped` = true), `sphere` (`center`, `radius`) |
+//! | `shape` | string | required | `plane` (`point`, `normal`), `rectangle` (`corner`, `edge_u`, `edge_v`), `box` (`center`, `size`, optional `rotation_deg` = `[x,y,z]` Euler angles applied x, then y, then z), `cylinder` (`from`, `to`, `radius`, optional `capped` = true, optional `arc_deg` and `arc_towards` = `[0,0,1]`: only the part of mantle and caps within `arc_deg / 2` of `arc_towards` around the axis, e.g. 180 for a barrel vault), `sphere` (`center`, `radius`) |
 //! | `name` | string | | label for error messages |
 //! | `albedo` | `[r,g,b]` | `[0.7,0.7,0.7]` | reflectance in `[0, 1]` |
 //! | `texture` | `none`/`checker`/`noise` | `noise` | solid texture in world coordinates |

@@ -148,6 +148,22 @@ pub struct ProjectorSpec {
     pub roll_amplitude_deg: f64,
     #[serde(default = "default_roll_period")]
     pub roll_period_frames: f64,
+    /// The rest centre wanders within this radius (0: it stays put).
+    #[serde(default)]
+    pub drift: f64,
+    #[serde(default = "default_drift_correlation")]
+    pub drift_correlation_frames: f64,
+    /// Steady translation of the rest centre per frame, camera axes.
+    #[serde(default)]
+    pub walk_per_frame: [f64; 3],
+    #[serde(default)]
+    pub roll_swing_deg: f64,
+    #[serde(default = "default_roll_swing_period")]
+    pub roll_swing_period_frames: f64,
+    #[serde(default)]
+    pub roll_jitter_deg: f64,
+    #[serde(default = "default_roll_jitter_period")]
+    pub roll_jitter_period_frames: f64,
 }
 
 fn default_baseline_direction() -> [f64; 3] {
@@ -177,6 +193,15 @@ fn default_roll_amplitude() -> f64 {
 fn default_roll_period() -> f64 {
     33.0
 }
+fn default_drift_correlation() -> f64 {
+    40.0
+}
+fn default_roll_swing_period() -> f64 {
+    300.0
+}
+fn default_roll_jitter_period() -> f64 {
+    5.0
+}
 
 impl Default for ProjectorSpec {
     fn default() -> Self {
@@ -194,6 +219,13 @@ impl Default for ProjectorSpec {
             roll_deg: 0.0,
             roll_amplitude_deg: default_roll_amplitude(),
             roll_period_frames: default_roll_period(),
+            drift: 0.0,
+            drift_correlation_frames: default_drift_correlation(),
+            walk_per_frame: [0.0; 3],
+            roll_swing_deg: 0.0,
+            roll_swing_period_frames: default_roll_swing_period(),
+            roll_jitter_deg: 0.0,
+            roll_jitter_period_frames: default_roll_jitter_period(),
         }
     }
 }
@@ -340,6 +372,12 @@ pub struct PrimitiveSpec {
     pub radius: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub capped: Option<bool>,
+    /// Cylinders only: keep the part of the mantle (and caps) within `arc_deg / 2` of
+    /// `arc_towards` around the axis (a barrel vault is the upper half).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arc_deg: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arc_towards: Option<[f64; 3]>,
     #[serde(default = "default_albedo")]
     pub albedo: [f64; 3],
     #[serde(default)]
@@ -350,6 +388,9 @@ pub struct PrimitiveSpec {
     pub texture_contrast: f64,
 }
 
+fn default_arc_towards() -> [f64; 3] {
+    [0.0, 0.0, 1.0]
+}
 fn default_albedo() -> [f64; 3] {
     [0.7, 0.7, 0.7]
 }
@@ -483,10 +524,22 @@ impl SceneSpec {
             ("sweep_period_frames", p.sweep_period_frames),
             ("roll_period_frames", p.roll_period_frames),
             ("wobble_period_frames", p.wobble_period_frames),
+            ("drift_correlation_frames", p.drift_correlation_frames),
+            ("roll_swing_period_frames", p.roll_swing_period_frames),
+            ("roll_jitter_period_frames", p.roll_jitter_period_frames),
         ] {
-            if v <= 0.0 {
+            if !(v > 0.0) {
                 return Err(bad(format!("[projector] `{key}` must be positive")));
             }
+        }
+        if !(p.drift >= 0.0 && p.drift.is_finite()) {
+            return Err(bad(format!(
+                "[projector] `drift` = {}, expected >= 0",
+                p.drift
+            )));
+        }
+        if p.walk_per_frame.iter().any(|v| !v.is_finite()) {
+            return Err(bad("[projector] `walk_per_frame` must be finite".into()));
         }
         if self.primitives.is_empty() {
             return Err(bad("the scene has no [[primitive]]".into()));
@@ -518,7 +571,7 @@ fn shape_name(s: Shape) -> &'static str {
 }
 
 fn validate_primitive(p: &PrimitiveSpec) -> Result<(), String> {
-    let given: [(&str, bool); 11] = [
+    let given: [(&str, bool); 13] = [
         ("point", p.point.is_some()),
         ("normal", p.normal.is_some()),
         ("corner", p.corner.is_some()),
@@ -530,12 +583,14 @@ fn validate_primitive(p: &PrimitiveSpec) -> Result<(), String> {
         ("from", p.from.is_some()),
         ("to", p.to.is_some()),
         ("radius", p.radius.is_some() || p.capped.is_some()),
+        ("arc_deg", p.arc_deg.is_some()),
+        ("arc_towards", p.arc_towards.is_some()),
     ];
     let (required, optional): (&[&str], &[&str]) = match p.shape {
         Shape::Plane => (&["point", "normal"], &[]),
         Shape::Rectangle => (&["corner", "edge_u", "edge_v"], &[]),
         Shape::Box => (&["center", "size"], &["rotation_deg"]),
-        Shape::Cylinder => (&["from", "to", "radius"], &[]),
+        Shape::Cylinder => (&["from", "to", "radius"], &["arc_deg", "arc_towards"]),
         Shape::Sphere => (&["center", "radius"], &[]),
     };
     let name = shape_name(p.shape);
@@ -558,6 +613,19 @@ fn validate_primitive(p: &PrimitiveSpec) -> Result<(), String> {
     }
     if p.capped.is_some() && p.shape != Shape::Cylinder {
         return Err(format!("key `capped` does not apply to shape \"{name}\""));
+    }
+    if let Some(a) = p.arc_deg {
+        if !(a > 0.0 && a <= 360.0) {
+            return Err(format!("`arc_deg` = {a}, expected 0 < arc_deg <= 360"));
+        }
+    }
+    if let (Some(a), Some(b), Some(deg)) = (p.from, p.to, p.arc_deg) {
+        let axis = V3::from(b) - V3::from(a);
+        let towards = V3::from(p.arc_towards.unwrap_or(default_arc_towards()));
+        let across = axis.normalize().cross(&towards).norm();
+        if deg < 360.0 && a != b && !(across > 1e-6 * towards.norm()) {
+            return Err("`arc_towards` is zero or parallel to the axis".into());
+        }
     }
     if let Some(r) = p.radius {
         if r <= 0.0 {
@@ -733,6 +801,9 @@ enum Geometry {
         len: f64,
         r: f64,
         capped: bool,
+        /// Unit direction (normal to the axis) the kept arc is centred on, and the
+        /// cosine of its half angle; `None` for the whole circle.
+        arc: Option<(V3, f64)>,
     },
     Sphere {
         c: V3,
@@ -813,12 +884,21 @@ impl Scene {
                     let a = pt(p.from.unwrap_or(zero));
                     let b = pt(p.to.unwrap_or([0.0, 0.0, 1.0]));
                     let axis = b - a;
+                    let w = axis.normalize();
+                    let arc = p.arc_deg.filter(|&deg| deg < 360.0).map(|deg| {
+                        let t = vec(p.arc_towards.unwrap_or(default_arc_towards()));
+                        (
+                            (t - w * w.dot(&t)).normalize(),
+                            (0.5 * deg).to_radians().cos(),
+                        )
+                    });
                     Geometry::Cylinder {
                         a,
-                        w: axis.normalize(),
+                        w,
                         len: axis.norm(),
                         r: p.radius.unwrap_or(1.0),
                         capped: p.capped.unwrap_or(true),
+                        arc,
                     }
                 }
                 Shape::Sphere => Geometry::Sphere {
@@ -989,7 +1069,14 @@ fn intersect(g: &Geometry, o: &V3, d: &V3, t_max: f64) -> Option<(f64, V3)> {
             len,
             r,
             capped,
+            arc,
         } => {
+            // Whether the radial offset from the axis lies within the kept arc.
+            let in_arc = |radial: &V3| {
+                arc.is_none_or(|(towards, cos_half)| {
+                    radial.dot(&towards) >= cos_half * radial.norm()
+                })
+            };
             let oc = o - a;
             let dw = d.dot(w);
             let ow = oc.dot(w);
@@ -1005,8 +1092,8 @@ fn intersect(g: &Geometry, o: &V3, d: &V3, t_max: f64) -> Option<(f64, V3)> {
                     let sq = disc.sqrt();
                     for t in [(-qb - sq) / qa, (-qb + sq) / qa] {
                         let s = ow + t * dw;
-                        if ok(t) && (0.0..=*len).contains(&s) {
-                            let radial = op + dp * t;
+                        let radial = op + dp * t;
+                        if ok(t) && (0.0..=*len).contains(&s) && in_arc(&radial) {
                             best = Some((t, radial / *r));
                             break;
                         }
@@ -1018,7 +1105,7 @@ fn intersect(g: &Geometry, o: &V3, d: &V3, t_max: f64) -> Option<(f64, V3)> {
                     let t = (s0 - ow) / dw;
                     if ok(t) && best.is_none_or(|b| t < b.0) {
                         let radial = op + dp * t;
-                        if radial.norm_squared() <= r * r {
+                        if radial.norm_squared() <= r * r && in_arc(&radial) {
                             best = Some((t, w * sign));
                         }
                     }
@@ -1197,6 +1284,73 @@ mod tests {
         // z = 3 + 0.25 (x + 2) reaches the wall z = 3.5 at x = 0.
         assert!(close(&h.point, [0.0, 0.0, 3.5]));
         assert!(close(&h.normal, [0.0, 0.0, 1.0]));
+    }
+
+    #[test]
+    fn half_cylinder_vault_seen_from_inside() {
+        // World = camera frame (+Y down): a vault of radius 2 along +Z over a floor 1
+        // below the camera, kept where the radial direction points up (-Y).
+        let s = scene_of(
+            "[[primitive]]\nshape = \"cylinder\"\nfrom = [0, 0, -1]\nto = [0, 0, 10]\nradius = 2\narc_deg = 180\narc_towards = [0, -1, 0]\n\
+             [[primitive]]\nshape = \"plane\"\npoint = [0, 1, 0]\nnormal = [0, -1, 0]\n",
+        );
+        let h = s
+            .cast(&V3::zeros(), &V3::new(0.0, -1.0, 0.0))
+            .expect("vault");
+        assert_eq!(h.primitive, 0);
+        assert!(close(&h.point, [0.0, -2.0, 0.0]));
+        // Above the springing line: the vault; below it the lower half is cut away and
+        // the ray goes on to the floor.
+        let h = s
+            .cast(&V3::zeros(), &V3::new(1.0, -0.1, 0.0))
+            .expect("vault");
+        assert_eq!(h.primitive, 0);
+        assert!((h.point.norm() - 2.0).abs() < 1e-12);
+        let h = s
+            .cast(&V3::zeros(), &V3::new(0.0, 1.0, 0.3))
+            .expect("floor");
+        assert_eq!(h.primitive, 1);
+        let h = s
+            .cast(&V3::zeros(), &V3::new(1.0, 0.1, 0.0))
+            .expect("floor");
+        assert_eq!(h.primitive, 1);
+        assert!(close(&h.point, [10.0, 1.0, 0.0]));
+        // Caps are cut the same way.
+        let s = scene_of(
+            "[[primitive]]\nshape = \"cylinder\"\nfrom = [0, 0, 2]\nto = [0, 0, 4]\nradius = 1\narc_deg = 180\narc_towards = [0, -1, 0]\n",
+        );
+        let h = s.cast(&V3::new(0.0, -0.5, 0.0), &V3::z()).expect("cap");
+        assert!(close(&h.point, [0.0, -0.5, 2.0]));
+        assert!(s.cast(&V3::new(0.0, 0.5, 0.0), &V3::z()).is_none());
+        // A full arc is the whole cylinder.
+        let full = scene_of(
+            "[[primitive]]\nshape = \"cylinder\"\nfrom = [0, 0, 2]\nto = [0, 0, 4]\nradius = 1\narc_deg = 360\n",
+        );
+        assert!(full.cast(&V3::new(0.0, 0.5, 0.0), &V3::z()).is_some());
+    }
+
+    #[test]
+    fn arc_keys_are_checked() {
+        let base = "name = \"t\"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 1, 0]\nhfov_deg = 60\n[[primitive]]\n";
+        let bad = [
+            "shape = \"cylinder\"\nfrom = [0, 0, 0]\nto = [0, 0, 1]\nradius = 1\narc_deg = 0\n",
+            "shape = \"cylinder\"\nfrom = [0, 0, 0]\nto = [0, 0, 1]\nradius = 1\narc_deg = 400\n",
+            // Along the axis: no direction around it.
+            "shape = \"cylinder\"\nfrom = [0, 0, 0]\nto = [0, 0, 1]\nradius = 1\narc_deg = 90\n",
+            "shape = \"sphere\"\ncenter = [0, 2, 0]\nradius = 1\narc_deg = 90\n",
+        ];
+        for prim in bad {
+            let text = format!("{base}{prim}");
+            let e = SceneSpec::from_toml_str(&text, Path::new("a.toml")).expect_err(prim);
+            assert!(e.to_string().contains("arc"), "{e}");
+        }
+        let ok = format!("{base}shape = \"cylinder\"\nfrom = [0, 0, 0]\nto = [1, 0, 0]\nradius = 1\narc_deg = 90\n");
+        let spec = SceneSpec::from_toml_str(&ok, Path::new("a.toml")).expect("valid");
+        let text = spec.to_toml_string().expect("toml");
+        assert_eq!(
+            SceneSpec::from_toml_str(&text, Path::new("b.toml")).expect("reload"),
+            spec
+        );
     }
 
     #[test]
