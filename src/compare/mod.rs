@@ -4,11 +4,12 @@
 //! errors along the camera rays, and coverage of the lit image area).
 //!
 //! Owns the k-d tree ([`kdtree`]), alignment ([`align`]), statistics ([`stats`]), the
-//! histogram plot and distance colour map ([`plot`]) and the truth evaluation
-//! ([`truth`]). It reads and writes nothing itself: files are the CLI's business.
+//! histogram plot and distance colour map ([`plot`]), the truth evaluation
+//! ([`truth`]) and its count of wrong laser planes ([`planes`]). It reads and writes nothing itself: files are the CLI's business.
 //!
 //! # Report (JSON, version 1)
 //! `crossline compare --json` prints one object; `mode` says which half is present.
+//! Within a version keys are only added, never renamed or removed.
 //!
 //! | key | meaning |
 //! |---|---|
@@ -19,10 +20,19 @@
 //! | alignment | `{mode, scale, rotation (3×3 rows), translation, rotation_deg, iterations, pairs, rms}` |
 //! | thresholds | distances (scene units) for `distances.over` |
 //! | distances | `{count, mean, median, rms, p95, p99, max, over: [{threshold, fraction}]}` in scene units |
-//! | truth | the [`truth::TruthReport`] (truth mode): `points, evaluated, no_surface, invalid, scale_median, scale, outlier_relative, outlier_fraction, relative_error {count, mean, median, rms, p95, p99, max, over}, coverage {lit_pixels, covered_lit_pixels, fraction, radius_px}` |
+//! | truth | the [`truth::TruthReport`] (truth mode): `points, evaluated, no_surface, invalid, scale_median, scale, outlier_relative, outlier_fraction, relative_error {count, mean, median, rms, p95, p99, max, over}, wrong_plane_relative, planes_evaluated, wrong_planes, points_on_wrong_planes, points_on_wrong_planes_fraction, coverage {lit_pixels, covered_lit_pixels, fraction, radius_px}, coverage_visible` (the same, or `null`) |
+//!
+//! The plane keys of `truth`: a *plane* is one laser of one frame (the PLY's `frame` and
+//! `laser` properties); it is *wrong* when the median relative depth error of its
+//! evaluated points, after the global scale, exceeds `wrong_plane_relative` (default
+//! 0.02). `planes_evaluated` counts planes with an evaluated point, `wrong_planes` the
+//! wrong ones, `points_on_wrong_planes` the evaluated points on them, and
+//! `points_on_wrong_planes_fraction` that count over `evaluated`. All four are `null`
+//! when the cloud has no per-point `frame` and `laser`.
 
 pub mod align;
 pub mod kdtree;
+pub mod planes;
 pub mod plot;
 pub mod stats;
 pub mod truth;
@@ -32,8 +42,12 @@ use serde::Serialize;
 
 pub use align::{AlignError, AlignMode, AlignParams, Alignment, Similarity};
 pub use kdtree::KdTree;
+pub use planes::{PlaneErrors, PlaneIds};
 pub use stats::ErrorStats;
-pub use truth::{evaluate_against_truth, GroundTruth, TruthError, TruthParams, TruthReport};
+pub use truth::{
+    evaluate_against_truth, evaluate_cloud_against_truth, GroundTruth, TruthError, TruthParams,
+    TruthReport,
+};
 
 /// Version of the JSON report.
 pub const REPORT_VERSION: u32 = 1;

@@ -1,6 +1,7 @@
 //! Evaluation against the simulator's ground truth: for every reconstructed point, the
 //! true depth on the same camera ray, the global scale the self-calibration cannot
-//! observe, relative depth errors, and the coverage of the lit image area.
+//! observe, relative depth errors, the planes whose points are wrong together
+//! ([`super::planes`]), and the coverage of the lit image area.
 //!
 //! The truth is reached through the small [`GroundTruth`] trait so that this module does
 //! not depend on the simulator's types; the simulator's output folder implements it.
@@ -9,6 +10,7 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::planes::{plane_errors, PlaneIds};
 use super::stats::{median_mut, ErrorStats};
 use crate::camera::Camera;
 
@@ -36,6 +38,9 @@ pub struct TruthParams {
     pub outlier_relative: f64,
     /// A lit pixel counts as covered when a point projects within this radius.
     pub coverage_radius_px: f64,
+    /// A plane (one frame's one laser) is wrong when the median relative error of its
+    /// points exceeds this (0.02 = 2 %).
+    pub wrong_plane_relative: f64,
 }
 
 impl Default for TruthParams {
@@ -43,6 +48,7 @@ impl Default for TruthParams {
         Self {
             outlier_relative: 0.02,
             coverage_radius_px: 2.0,
+            wrong_plane_relative: 0.02,
         }
     }
 }
@@ -74,6 +80,16 @@ pub struct TruthReport {
     pub outlier_fraction: f64,
     /// Statistics of `|s·Z − Z_true| / Z_true` (dimensionless).
     pub relative_error: ErrorStats,
+    pub wrong_plane_relative: f64,
+    /// Planes (frame, laser) with an evaluated point; `None` (JSON `null`), as are the
+    /// three below, when the cloud does not say which plane each point lies on.
+    pub planes_evaluated: Option<usize>,
+    /// Planes whose median relative error exceeds `wrong_plane_relative`.
+    pub wrong_planes: Option<usize>,
+    /// Evaluated points on wrong planes.
+    pub points_on_wrong_planes: Option<usize>,
+    /// `points_on_wrong_planes / evaluated`.
+    pub points_on_wrong_planes_fraction: Option<f64>,
     pub coverage: Coverage,
     /// Coverage of the visible part of the lit area ([`GroundTruth::visible_mask`]).
     pub coverage_visible: Option<Coverage>,
@@ -87,14 +103,41 @@ pub struct TruthReport {
 pub enum TruthError {
     #[error("lit mask has {found} entries, expected width × height = {expected}")]
     MaskSize { expected: usize, found: usize },
+    #[error("{points} points but {frames} frame and {lasers} laser labels")]
+    PlaneIdsLength {
+        points: usize,
+        frames: usize,
+        lasers: usize,
+    },
 }
 
-/// Evaluates `points` (camera frame, reconstruction scale) against `truth`.
+/// Evaluates `points` (camera frame, reconstruction scale) against `truth`, without
+/// the per-plane counts.
 pub fn evaluate_against_truth(
     points: &[[f32; 3]],
     truth: &dyn GroundTruth,
     params: &TruthParams,
 ) -> Result<TruthReport, TruthError> {
+    evaluate_cloud_against_truth(points, None, truth, params)
+}
+
+/// Evaluates `points` (camera frame, reconstruction scale) against `truth`; with
+/// `planes` (which plane triangulated each point), also counts the wrong planes.
+pub fn evaluate_cloud_against_truth(
+    points: &[[f32; 3]],
+    planes: Option<PlaneIds>,
+    truth: &dyn GroundTruth,
+    params: &TruthParams,
+) -> Result<TruthReport, TruthError> {
+    if let Some(ids) = planes {
+        if ids.frames.len() != points.len() || ids.lasers.len() != points.len() {
+            return Err(TruthError::PlaneIdsLength {
+                points: points.len(),
+                frames: ids.frames.len(),
+                lasers: ids.lasers.len(),
+            });
+        }
+    }
     let camera = truth.camera();
     let (w, h) = (camera.width as usize, camera.height as usize);
     let lit = truth.lit_mask();
@@ -161,10 +204,12 @@ pub fn evaluate_against_truth(
         .collect();
     let relative_error = ErrorStats::from_values(&mut errors, &[params.outlier_relative]);
     drop(errors);
-    let per_point = depths
+    let per_point: Vec<f32> = depths
         .iter()
         .map(|&(z, zt)| ((scale * z - zt).abs() / zt) as f32)
         .collect();
+    let by_plane =
+        planes.and_then(|ids| plane_errors(&per_point, ids, params.wrong_plane_relative));
     let outlier_fraction = relative_error.over.first().map_or(0.0, |e| e.fraction);
     Ok(TruthReport {
         points: points.len(),
@@ -176,6 +221,13 @@ pub fn evaluate_against_truth(
         outlier_relative: params.outlier_relative,
         outlier_fraction,
         relative_error,
+        wrong_plane_relative: params.wrong_plane_relative,
+        planes_evaluated: by_plane.as_ref().map(|p| p.planes_evaluated),
+        wrong_planes: by_plane.as_ref().map(|p| p.wrong_planes),
+        points_on_wrong_planes: by_plane.as_ref().map(|p| p.points_on_wrong_planes),
+        points_on_wrong_planes_fraction: by_plane
+            .as_ref()
+            .map(|p| p.points_on_wrong_planes_fraction),
         coverage: coverage(points, camera, lit, params.coverage_radius_px),
         coverage_visible: visible.map(|v| coverage(points, camera, v, params.coverage_radius_px)),
         per_point,

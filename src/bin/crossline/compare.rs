@@ -8,8 +8,8 @@ use std::process::ExitCode;
 use anyhow::Context;
 use crossline::compare::plot::{self, HistogramStyle, Marker};
 use crossline::compare::{
-    self, AlignMode, AlignParams, CompareParams, ErrorStats, GroundTruth, TruthModeReport,
-    TruthParams,
+    self, AlignMode, AlignParams, CompareParams, ErrorStats, GroundTruth, PlaneIds,
+    TruthModeReport, TruthParams,
 };
 use crossline::ply::{self, Cloud};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -26,8 +26,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 ///   --truth SIMDIR       Against a folder written by `crossline simulate`: relative
 ///                        depth error |s·Z − Z_true| / Z_true along each point's camera
 ///                        ray after the best global scale s (the one quantity the
-///                        self-calibration cannot observe), and coverage of the lit
-///                        image area.
+///                        self-calibration cannot observe), the laser planes whose
+///                        points are wrong together (one plane is one frame's one
+///                        laser, from the PLY's `frame` and `laser` properties; it is
+///                        wrong when its points' median error is over
+///                        --wrong-plane-relative), and coverage of the lit image area.
 ///
 /// Alignment (--reference only): `none` uses the clouds as they are; `scale` fits one
 /// global scale about the camera centre (both clouds in the same camera frame: the
@@ -77,6 +80,10 @@ pub struct Args {
     /// Relative depth error above which a point is an outlier (--truth; 0.02 = 2 %).
     #[arg(long, default_value_t = 0.02)]
     outlier: f64,
+    /// A laser plane (one frame's one laser) is wrong when the median relative depth
+    /// error of its points is above this (--truth; 0.02 = 2 %).
+    #[arg(long, default_value_t = 0.02, value_name = "FRACTION")]
+    wrong_plane_relative: f64,
     /// A lit pixel is covered when a point projects within this many pixels (--truth).
     #[arg(long, default_value_t = 2.0, value_name = "PX")]
     coverage_radius: f64,
@@ -387,19 +394,31 @@ fn run_truth(args: &Args, cloud: &Cloud, dir: &Path) -> anyhow::Result<ExitCode>
     if args.align != AlignMode::None {
         tracing::warn!("--align is ignored with --truth: the best scale is always fitted");
     }
+    if !(args.wrong_plane_relative.is_finite() && args.wrong_plane_relative >= 0.0) {
+        anyhow::bail!(
+            "--wrong-plane-relative must be a non-negative fraction, got {}",
+            args.wrong_plane_relative
+        );
+    }
     let truth = load_truth(dir)?;
     let params = TruthParams {
         outlier_relative: args.outlier,
         coverage_radius_px: args.coverage_radius,
+        wrong_plane_relative: args.wrong_plane_relative,
     };
-    let report = compare::evaluate_against_truth(&cloud.points, truth.as_ref(), &params)
-        .with_context(|| {
-            format!(
-                "evaluating {} against {}",
-                args.cloud.display(),
-                dir.display()
-            )
-        })?;
+    let planes = match (&cloud.frames, &cloud.lasers) {
+        (Some(frames), Some(lasers)) => Some(PlaneIds { frames, lasers }),
+        _ => None,
+    };
+    let report =
+        compare::evaluate_cloud_against_truth(&cloud.points, planes, truth.as_ref(), &params)
+            .with_context(|| {
+                format!(
+                    "evaluating {} against {}",
+                    args.cloud.display(),
+                    dir.display()
+                )
+            })?;
     let full = TruthModeReport::new(
         &args.cloud.to_string_lossy(),
         &dir.to_string_lossy(),
@@ -427,6 +446,7 @@ fn run_truth(args: &Args, cloud: &Cloud, dir: &Path) -> anyhow::Result<ExitCode>
         );
         println!("relative depth error |s·Z − Z_true| / Z_true");
         print_stats(&r.relative_error, "");
+        print_planes(r, cloud);
         println!(
             "coverage   {:.2} % of {} lit pixels have a point within {} px",
             100.0 * r.coverage.fraction,
@@ -474,6 +494,36 @@ fn run_truth(args: &Args, cloud: &Cloud, dir: &Path) -> anyhow::Result<ExitCode>
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The wrong-plane counts of the summary, or why there are none.
+fn print_planes(r: &compare::TruthReport, cloud: &Cloud) {
+    let bound = 100.0 * r.wrong_plane_relative;
+    match (
+        r.planes_evaluated,
+        r.wrong_planes,
+        r.points_on_wrong_planes,
+        r.points_on_wrong_planes_fraction,
+    ) {
+        (Some(planes), Some(wrong), Some(points), Some(fraction)) => {
+            println!(
+                "planes     {wrong} of {planes} wrong (median error over {bound} %), \
+                 carrying {points} points: {:.3} % of the evaluated",
+                100.0 * fraction
+            );
+        }
+        _ => {
+            let missing = match (cloud.frames.is_some(), cloud.lasers.is_some()) {
+                (false, false) => "`frame` and `laser` properties",
+                (false, true) => "`frame` property",
+                _ => "`laser` property",
+            };
+            println!(
+                "planes     not evaluated: the cloud has no per-point {missing} \
+                 (the PLY that `reconstruct` writes has both)"
+            );
+        }
+    }
 }
 
 /// The ground truth of a folder written by `crossline simulate`.
@@ -525,6 +575,7 @@ mod tests {
             overlap: 0.5,
             bins: 40,
             outlier: 0.02,
+            wrong_plane_relative: 0.02,
             coverage_radius: 2.0,
             out: Some(dir.path().join("run")),
             json: true,
