@@ -15,8 +15,9 @@
 #   coverage visible-lit coverage >= 90 % of the true planes'
 #   focal    (with FOCAL_OFF) the recovered focal scale within 0.5 % of 1 / FOCAL_OFF
 # then one summary line: passes / total, the worst wrong-plane share, the median of the
-# median ratios, and the failed reconstructions. A reconstruction that fails (or times
-# out) is a FAIL row carrying the first line of its error; the script goes on.
+# median ratios, and the failed reconstructions (and simulations). A simulation or
+# reconstruction that fails (or times out) is a FAIL row carrying the first line of its
+# error; the script goes on.
 #
 #   cargo build --release && benches/generality.sh
 #   FRAMES=100 SEEDS="3 7" benches/generality.sh         # a quick look
@@ -28,8 +29,11 @@
 #   WORK       work folder (default target/bench-generality): sim-SEED/ (the simulation,
 #              kept and reused while SEED and FRAMES stay the same; delete it after the
 #              simulator changes), run-SEED/ (clouds, reports, compare JSON, logs), and
-#              generality.tsv (every row, machine-readable: the header names the
-#              columns; fractions, not per cent; empty where there is no value)
+#              generality.tsv (every row, machine-readable, rewritten by each run; the
+#              header names the columns: median, p95, wrong_share (points on wrong
+#              planes / evaluated), coverage (visible lit) and true_* are fractions, not
+#              per cent; wrong_planes of planes; *_ratio are self / true planes; empty
+#              where there is no value)
 #   FRAMES     frames per configuration (default 300)
 #   SEEDS      the configurations (default: the 24 below); an entry that is not a number
 #              names a built-in scene (room, bricks, pipes), simulated with --seed 1
@@ -170,12 +174,13 @@ reconstruct() {
     [ -z "$ERR" ] || rm -f "$run/$name-compare.json"
 }
 
-# row SEED SIM RUN SELF_SECS TRUE_SECS SELF_ERR TRUE_ERR: the TSV row of a
+# row SEED SIM RUN SELF_SECS TRUE_SECS SELF_ERR TRUE_ERR [SIM_ERR]: the TSV row of a
 # configuration, from random.json and the compare and reconstruct JSON reports.
 row() {
     python3 - "$FOCAL_OFF" "$@" <<'PY'
 import json, os, sys
-focal_off, seed, sim, run, self_secs, true_secs, self_err, true_err = sys.argv[1:]
+focal_off, seed, sim, run, self_secs, true_secs, self_err, true_err = sys.argv[1:9]
+sim_err = sys.argv[9] if len(sys.argv) > 9 else ""
 
 def load(path):
     try:
@@ -195,9 +200,11 @@ def coverage(t):
 s, t = truth("self"), truth("true")
 r = {"seed": seed, "kind": info.get("kind", ""), "summary": info.get("summary", ""),
      "self_seconds": self_secs, "true_seconds": true_secs,
-     "self_error": self_err, "true_error": true_err}
+     "self_error": self_err, "true_error": true_err, "sim_error": sim_err}
 fails = []
-if s:
+if sim_err:
+    fails.append("simulate")
+elif s:
     r.update(median=s["relative_error"]["median"], p95=s["relative_error"]["p95"],
              wrong_planes=s.get("wrong_planes"), planes=s.get("planes_evaluated"),
              wrong_share=s.get("points_on_wrong_planes_fraction"), coverage=coverage(s))
@@ -205,7 +212,9 @@ if s:
         fails.append("wrong")
 else:
     fails.append("self failed")
-if t:
+if sim_err:
+    pass
+elif t:
     r.update(true_median=t["relative_error"]["median"], true_coverage=coverage(t))
 else:
     fails.append("true failed")
@@ -216,7 +225,7 @@ if s and t:
         fails.append("median")
     if not r["coverage_ratio"] >= 0.9:
         fails.append("coverage")
-if focal_off:
+if focal_off and not sim_err:
     rep = load(os.path.join(run, "self-report.json")) or {}
     r["focal_true"] = 1 / float(focal_off)
     r["focal_scale"] = rep.get("focal_scale")
@@ -248,7 +257,7 @@ for line in sys.argv[1:]:
         f = f"{float(r['focal_scale']):.4f}" if r.get("focal_scale") else "-"
         text += f" {f:>7}/{float(r['focal_true']):.4f}"
     text += f"  {r['verdict']}"
-    for key in ("self_error", "true_error"):
+    for key in ("sim_error", "self_error", "true_error"):
         if r.get(key):
             text += f"\n{'':>6} {key.split('_')[0]}: {r[key]}"
     print(text)
@@ -266,18 +275,20 @@ wrong = [float(r["wrong_share"]) for r in rows if r.get("wrong_share")]
 ratios = [float(r["median_ratio"]) for r in rows if r.get("median_ratio")]
 failed_self = sum(bool(r["self_error"]) for r in rows)
 failed_true = sum(bool(r["true_error"]) for r in rows)
+failed_sim = sum(bool(r["sim_error"]) for r in rows)
 print(f"{passes} / {len(rows)} pass; worst wrong-plane share "
       + (f"{100 * max(wrong):.2f} %" if wrong else "-")
       + "; median of the median ratios "
       + (f"{statistics.median(ratios):.2f}" if ratios else "-")
-      + f"; failed reconstructions: {failed_self} self-calibrated, {failed_true} true planes")
+      + f"; failed reconstructions: {failed_self} self-calibrated, {failed_true} true planes"
+      + (f"; failed simulations: {failed_sim}" if failed_sim else ""))
 PY
 }
 
 COLUMNS_TSV="seed kind summary median p95 wrong_share wrong_planes planes coverage \
 true_median true_coverage median_ratio coverage_ratio self_seconds true_seconds"
 [ -n "$FOCAL_OFF" ] && COLUMNS_TSV+=" focal_scale focal_scale_std focal_true"
-COLUMNS_TSV+=" verdict self_error true_error"
+COLUMNS_TSV+=" verdict self_error true_error sim_error"
 export COLUMNS_TSV
 echo "$COLUMNS_TSV" | tr ' ' '\t' > "$TSV"
 
@@ -291,8 +302,7 @@ for seed in $SEEDS; do
     rm -rf "$run"
     mkdir -p "$run"
     if ! simulate "$seed" "$sim"; then
-        err="simulate: $(first_error "$sim/simulate.log")"
-        line=$(row "$seed" "$sim" "$run" "" "" "$err" "$err")
+        line=$(row "$seed" "$sim" "$run" "" "" "" "" "$(first_error "$sim/simulate.log")")
         echo "$line" >> "$TSV"
         show "$line"
         continue
