@@ -38,14 +38,20 @@
 //! is fixed so that the median inverse depth of the global crossings is 1 (median depth
 //! about 1) and depths are positive; the caller rescales to metric units.
 
+pub mod calibrate;
+pub mod estimate;
+pub mod evidence;
 pub mod extend;
+pub mod init;
 pub mod joint;
 pub mod motion;
 pub mod nullspace;
 pub mod ortho;
+pub mod pose;
 pub mod seed;
 pub mod subset;
 pub mod synthetic;
+pub mod terms;
 
 use crate::intersect::Crossing;
 use crate::simulate::scene::mix64;
@@ -1047,5 +1053,7 @@ pub fn solve_warm(
     })
 }
 
+#[cfg(test)]
+mod estimate_tests;
 #[cfg(test)]
 mod tests;

@@ -439,3 +439,98 @@ pub fn sphere_crossings(
     }
     out
 }
+
+/// What [`path_scan`] draws: a hand-held projector moving smoothly over `frames`
+/// frames, aimed on a Lissajous sweep over the window, its roll swinging.
+#[derive(Clone, Debug)]
+pub struct PathSpec {
+    pub frames: usize,
+    pub seed: u64,
+    /// Centre of the hand's path, camera coordinates.
+    pub centre: Vector3<f64>,
+    /// Amplitude of the smooth drift of the centre, per axis.
+    pub drift: f64,
+    /// Period of the drift's slowest term, frames.
+    pub drift_period: f64,
+    /// Period of the horizontal aim sweep, frames (vertical: × golden ratio).
+    pub sweep_period: f64,
+    /// Share of the window the aim sweeps over (1: to its edges).
+    pub sweep_extent: f64,
+    /// Amplitude of the roll's swing, radians, and its period in frames.
+    pub roll_amplitude: f64,
+    pub roll_period: f64,
+    pub scene: Scene,
+}
+
+impl Default for PathSpec {
+    fn default() -> Self {
+        Self {
+            frames: 60,
+            seed: 1,
+            centre: Vector3::new(0.6, -0.5, 0.2),
+            drift: 0.05,
+            drift_period: 40.0,
+            sweep_period: 37.0,
+            sweep_extent: 0.8,
+            roll_amplitude: 0.8,
+            roll_period: 45.0,
+            scene: Scene::default(),
+        }
+    }
+}
+
+/// A scan by a moving hand: per frame, the true projector centre and both planes
+/// (plane `2f + k` is laser `k` of frame `f`).
+#[derive(Clone, Debug)]
+pub struct PathScan {
+    pub scene: Scene,
+    pub centres: Vec<Vector3<f64>>,
+    pub planes: Vec<[Vector3<f64>; 2]>,
+}
+
+impl PathScan {
+    /// Every plane in order, `2f + k`.
+    pub fn flat_planes(&self) -> Vec<Vector3<f64>> {
+        self.planes.iter().flat_map(|p| p.iter().copied()).collect()
+    }
+}
+
+/// A smooth, seeded hand path over `spec.scene` (see [`PathSpec`]).
+pub fn path_scan(spec: &PathSpec) -> PathScan {
+    let mut rng = Rng::new(spec.seed);
+    let tau = std::f64::consts::TAU;
+    let phase: Vec<f64> = (0..9).map(|_| rng.uniform(0.0, tau)).collect();
+    let [x0, x1, y0, y1] = spec.scene.window;
+    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    let (hx, hy) = (0.5 * (x1 - x0), 0.5 * (y1 - y0));
+    let mut centres = Vec::with_capacity(spec.frames);
+    let mut planes = Vec::with_capacity(spec.frames);
+    for f in 0..spec.frames {
+        let t = f as f64;
+        let drift = Vector3::new(
+            (tau * t / spec.drift_period + phase[0]).sin()
+                + 0.4 * (tau * 1.7 * t / spec.drift_period + phase[1]).sin(),
+            (tau * 0.8 * t / spec.drift_period + phase[2]).sin(),
+            (tau * 1.3 * t / spec.drift_period + phase[3]).sin(),
+        ) * (spec.drift / 1.4);
+        let c = spec.centre + drift;
+        let gold = 1.618_033_988_749_895;
+        let tx = cx + spec.sweep_extent * hx * (tau * t / spec.sweep_period + phase[4]).sin();
+        let ty =
+            cy + spec.sweep_extent * hy * (tau * t / (gold * spec.sweep_period) + phase[5]).sin();
+        let target = Vector3::new(tx, ty, 1.0) / spec.scene.inverse_depth(tx, ty);
+        let axis = (target - c).normalize();
+        let e1 = axis.cross(&Vector3::y()).normalize();
+        let e2 = axis.cross(&e1);
+        let roll = phase[6] + spec.roll_amplitude * (tau * t / spec.roll_period + phase[7]).sin();
+        let n0 = e1 * roll.cos() + e2 * roll.sin();
+        let n1 = axis.cross(&n0);
+        centres.push(c);
+        planes.push([n0 / n0.dot(&c), n1 / n1.dot(&c)]);
+    }
+    PathScan {
+        scene: spec.scene.clone(),
+        centres,
+        planes,
+    }
+}

@@ -1,0 +1,230 @@
+//! The self-calibration of a whole scan: a linear start, then the joint estimator, then
+//! what each plane's own evidence says about it.
+//!
+//! Owns the order of the solver's stages and the small API the pipeline calls
+//! ([`calibrate`] → [`Calibration`]); the stages are [`super::solve`] (the linear start:
+//! coplanarity null space, the shift `w` from the orthogonality of the crosses,
+//! extension), [`super::init`] (poses from planes) and [`super::estimate`] (the joint
+//! robust estimate and its covariance).
+//!
+//! # What a plane is told
+//! Every plane of the evidence gets a verdict ([`PlaneVerdict`]):
+//! - `Determined`: its pose was estimated; the uncertainty of each point on it follows
+//!   from the estimate ([`Calibration::depth_sigma`]), and triangulation keeps the points
+//!   that are determined well enough;
+//! - `Disputed`: most of its own crossings reject the estimate (their robust weight under
+//!   one half): the plane contradicts its evidence and is not used;
+//! - `NoEvidence`: no crossing of it could be evaluated.
+
+use nalgebra::Vector3;
+use serde::Serialize;
+
+use super::estimate::{self, Estimate, EstimateParams, Spreads, Start};
+use super::evidence::{CrossingClass, Evidence, Ray};
+use super::{init, Problem, SolveError, SolveParams};
+use crate::intersect::Crossing;
+
+type V3 = Vector3<f64>;
+
+/// What the estimate says of one plane.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PlaneVerdict {
+    Determined,
+    Disputed,
+    NoEvidence,
+}
+
+/// Counts for the report.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct CalibrationSummary {
+    pub planes: usize,
+    pub planes_determined: usize,
+    pub planes_disputed: usize,
+    pub planes_without_evidence: usize,
+    /// Planes the linear start solved (and of those, in its global subset).
+    pub planes_in_start: usize,
+    pub planes_in_global_start: usize,
+    pub crossings: usize,
+    /// Crossings the estimate weighs at under one half (beyond its Cauchy scale).
+    pub crossings_outlying: usize,
+    pub iterations: usize,
+    pub spreads: Option<Spreads>,
+    pub focal_scale: f64,
+    pub focal_scale_std: Option<f64>,
+    /// RMS departure from 90° of the crosses (0 by construction in the estimate; kept for
+    /// the report's continuity).
+    pub orthogonality_rms_deg: f64,
+}
+
+/// The scan's planes and how well each is known.
+#[derive(Clone, Debug)]
+pub struct Calibration {
+    pub estimate: Estimate,
+    pub verdicts: Vec<PlaneVerdict>,
+    pub summary: CalibrationSummary,
+}
+
+impl Calibration {
+    /// Plane `i` as `v` with `v · r = 1/Z` on the rays at the estimated focal scale; `None`
+    /// unless determined.
+    pub fn plane(&self, evidence: &Evidence, i: usize) -> Option<V3> {
+        if self.verdicts.get(i) != Some(&PlaneVerdict::Determined) {
+            return None;
+        }
+        let slot = evidence.planes[i];
+        self.estimate.poses[slot.pose as usize].plane(usize::from(slot.laser))
+    }
+
+    /// The ray of the undistorted normalised point `u` (camera file coordinates) at the
+    /// estimated focal scale.
+    pub fn ray(&self, evidence: &Evidence, u: [f64; 2]) -> Option<Ray> {
+        evidence.rays.ray(u, self.estimate.focal_scale)
+    }
+
+    /// One standard deviation of the relative depth of a point along `ray` on plane `i`.
+    pub fn depth_sigma(&self, evidence: &Evidence, i: usize, ray: &Ray) -> f64 {
+        let slot = evidence.planes[i];
+        self.estimate
+            .depth_sigma(slot.pose as usize, usize::from(slot.laser), ray)
+    }
+}
+
+/// The linear start's problem: the strong crossings, planes as curves, partners by pose.
+fn start_problem<'a>(
+    evidence: &Evidence,
+    crossings: &'a [Crossing],
+    partner: &'a [Option<u32>],
+) -> Problem<'a> {
+    Problem {
+        num_curves: evidence.planes.len(),
+        crossings,
+        partner,
+        focal_px: evidence.focal_px,
+    }
+}
+
+/// Self-calibrates the scan of `evidence` (see the module docs).
+pub fn calibrate(evidence: &Evidence, params: &SolveParams) -> Result<Calibration, SolveError> {
+    evidence.validate().map_err(SolveError::InvalidProblem)?;
+    let strong: Vec<Crossing> = evidence
+        .crossings
+        .iter()
+        .filter(|c| c.class == CrossingClass::Strong)
+        .map(|c| Crossing {
+            a: c.a.min(c.b),
+            b: c.a.max(c.b),
+            u: c.u,
+            sin_angle: c.sin_angle,
+        })
+        .collect();
+    let by_pose = evidence.planes_of_poses();
+    let partner: Vec<Option<u32>> = evidence
+        .planes
+        .iter()
+        .map(|p| by_pose[p.pose as usize][usize::from(p.laser == 0)])
+        .collect();
+    let start = super::solve(&start_problem(evidence, &strong, &partner), params)?;
+    // The start's planes are in its focal-corrected coordinates (x/λ, y/λ, 1).
+    let planes: Vec<Option<V3>> = start.planes.clone();
+    let (poses, _had) = init::poses_from_planes(evidence, &planes)
+        .ok_or(SolveError::Degenerate("no plane to start from"))?;
+    let sigma_px = (start.sigma_img * evidence.focal_px).max(1e-3);
+    let spreads = init::start_spreads(evidence, &poses, sigma_px);
+    let eparams = EstimateParams {
+        estimate_focal: params.estimate_focal,
+        ..EstimateParams::default()
+    };
+    let mut est = estimate::estimate(
+        evidence,
+        &Start {
+            poses,
+            focal_scale: start.focal_scale,
+            spreads,
+        },
+        &eparams,
+    )?;
+    normalise_scale(evidence, &mut est);
+    let verdicts = verdicts(evidence, &est);
+    let count = |v: PlaneVerdict| verdicts.iter().filter(|x| **x == v).count();
+    let focal_scale_std = params
+        .estimate_focal
+        .then(|| est.marginals.first().map(|m| m[(6, 6)].max(0.0).sqrt()))
+        .flatten();
+    let summary = CalibrationSummary {
+        planes: evidence.planes.len(),
+        planes_determined: count(PlaneVerdict::Determined),
+        planes_disputed: count(PlaneVerdict::Disputed),
+        planes_without_evidence: count(PlaneVerdict::NoEvidence),
+        planes_in_start: start.planes.iter().filter(|p| p.is_some()).count(),
+        planes_in_global_start: start.global.len(),
+        crossings: evidence.crossings.len(),
+        crossings_outlying: est.crossing_weights.iter().filter(|w| **w < 0.5).count(),
+        iterations: est.iterations,
+        spreads: Some(est.spreads),
+        focal_scale: est.focal_scale,
+        focal_scale_std,
+        orthogonality_rms_deg: 0.0,
+    };
+    Ok(Calibration {
+        estimate: est,
+        verdicts,
+        summary,
+    })
+}
+
+/// Rescales the centres (and their covariance, and the centre spread) so that the median
+/// inverse depth at the crossings is 1.
+fn normalise_scale(evidence: &Evidence, est: &mut Estimate) {
+    let lambda = est.focal_scale;
+    let inverse_depths: Vec<f64> = evidence
+        .crossings
+        .iter()
+        .zip(&est.crossing_weights)
+        .filter(|(_, w)| **w >= 0.5)
+        .filter_map(|(c, _)| {
+            let slot = evidence.planes[c.a as usize];
+            let v = est.poses[slot.pose as usize].plane(usize::from(slot.laser))?;
+            let ray = evidence.rays.ray(c.u, lambda)?;
+            Some(v.dot(&ray.r))
+        })
+        .collect();
+    let Some(m) = super::median(inverse_depths).filter(|m| m.is_finite() && *m != 0.0) else {
+        return;
+    };
+    for p in &mut est.poses {
+        p.centre *= m;
+    }
+    let t = nalgebra::SVector::<f64, 7>::from_column_slice(&[1.0, 1.0, 1.0, m, m, m, 1.0]);
+    let t = nalgebra::SMatrix::<f64, 7, 7>::from_diagonal(&t);
+    for cov in &mut est.marginals {
+        *cov = t * *cov * t;
+    }
+    est.spreads.centre *= m.abs();
+}
+
+/// Per plane, what its own crossings say of the estimate (see the module docs).
+fn verdicts(evidence: &Evidence, est: &Estimate) -> Vec<PlaneVerdict> {
+    let mut counts = vec![(0usize, 0usize); evidence.planes.len()];
+    for (c, &w) in evidence.crossings.iter().zip(&est.crossing_weights) {
+        for p in [c.a, c.b] {
+            let slot = &mut counts[p as usize];
+            if w > 0.0 {
+                slot.0 += 1;
+                slot.1 += usize::from(w < 0.5);
+            }
+        }
+    }
+    counts
+        .iter()
+        .map(|&(total, bad)| {
+            if total == 0 {
+                PlaneVerdict::NoEvidence
+            } else if 2 * bad > total {
+                PlaneVerdict::Disputed
+            } else {
+                PlaneVerdict::Determined
+            }
+        })
+        .collect()
+}

@@ -1,0 +1,769 @@
+//! The joint estimator: every pose of the hand-held projector (and the focal scale, when
+//! asked) from all crossings at once, the hand's motion as a soft term, each kind of
+//! residual weighed by its own measured spread, and the uncertainty of every plane from
+//! the estimator's own information.
+//!
+//! Owns the minimisation and the covariance; the residual formulas are in
+//! [`super::terms`], the parametrisation in [`super::pose`], the start in
+//! [`super::init`].
+//!
+//! # Cost
+//! ```text
+//!   Σ_crossings ρ_C(e_k / σ_class)  +  Σ_triples ρ_H(|D_C| / σ_C)  +  ρ_H(D_aim / σ_aim) + ρ_H(D_roll / σ_roll)
+//! ```
+//! over the poses `(R_f, C_f)`: the crossings' image distances from the line where their
+//! planes meet (pixels; Cauchy's loss, so that wrong crossings fade out), and the second
+//! differences of the hand's centre and rotation (Huber's loss). Orthogonality needs no
+//! term: it is in the parametrisation. The one freedom no crossing fixes, the global
+//! scale, is held by a gauge row: the mean log inverse depth at the crossings stays where
+//! it started (the centres are rescaled to it after every step). Relative depth errors
+//! then come out as after the best global scale, and nothing a crossing leaves free is
+//! pinned by the gauge.
+//!
+//! # Minimisation
+//! Levenberg–Marquardt on the dense normal equations (six unknowns a pose, one more for
+//! the focal scale), the robust weights recomputed at every linearisation. Dense,
+//! because a sweep's crossing graph is: each frame's stripe crosses the other laser's
+//! stripes of most frames, so a sparse factor would fill in.
+//!
+//! # Spreads and uncertainty
+//! The spreads are measured, not set: after the minimisation, each kind of residual's
+//! variance is its weighted sum of squares over its share of the redundancy (Förstner's
+//! variance component estimation, `σ² ← Σ w e² / Σ (w − h)`, `h` the leverage of each
+//! residual from the covariance), and the minimisation is repeated until they settle.
+//! The covariance of the poses is the inverse of the final information matrix; each
+//! pose keeps its marginal block (with the focal scale), from which the relative depth
+//! uncertainty of any point on its planes follows ([`Estimate::depth_sigma`]).
+
+use faer::Mat;
+use nalgebra::{SMatrix, SVector};
+
+use super::evidence::{CrossingClass, Evidence, Ray};
+use super::pose::{CrossPose, POSE_DOF};
+use super::terms::{self, Loss, MotionTerm};
+use super::SolveError;
+
+/// The marginal covariance of one pose's six local parameters and the focal scale.
+pub type PoseMarginal = SMatrix<f64, 7, 7>;
+
+/// Settings of the estimator.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EstimateParams {
+    pub estimate_focal: bool,
+    /// Include the hand's motion terms.
+    pub motion: bool,
+    /// Largest number of Levenberg–Marquardt steps per round.
+    pub max_iterations: usize,
+    /// Largest number of rounds of measuring the spreads and minimising again.
+    pub variance_rounds: usize,
+    /// Cauchy scale of the crossings, in their spread.
+    pub crossing_loss: f64,
+    /// Huber threshold of the motion terms, in their spread.
+    pub motion_loss: f64,
+}
+
+impl Default for EstimateParams {
+    fn default() -> Self {
+        Self {
+            estimate_focal: false,
+            motion: true,
+            max_iterations: 30,
+            variance_rounds: 4,
+            // 95 % efficiency on Gaussian noise for Cauchy's loss (2.385) and Huber's (1.345)
+            // would call good crossings wrong at the tails; a wider window keeps them.
+            crossing_loss: 3.0,
+            motion_loss: 2.0,
+        }
+    }
+}
+
+/// The spread of each kind of residual: crossings (pixels) by class, the centre's
+/// second difference (length per frame², in the solution's scale) and the rotation's
+/// (radians per frame²) about the laser normals (aim) and the axis (roll).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Spreads {
+    pub crossing_px: [f64; 2],
+    pub centre: f64,
+    pub aim_rad: f64,
+    pub roll_rad: f64,
+}
+
+/// The estimator's answer.
+#[derive(Clone, Debug)]
+pub struct Estimate {
+    pub poses: Vec<CrossPose>,
+    pub focal_scale: f64,
+    pub spreads: Spreads,
+    /// Per crossing, its robust weight at the end (1: a full inlier, near 0: ignored),
+    /// 0 where the crossing could not be evaluated.
+    pub crossing_weights: Vec<f32>,
+    /// Per crossing, its residual in units of its spread (NaN where not evaluated).
+    pub crossing_residuals: Vec<f32>,
+    /// Per pose, the marginal covariance of `(δθ, δC, λ)`.
+    pub marginals: Vec<PoseMarginal>,
+    /// Final robust cost, in units of the spreads.
+    pub cost: f64,
+    pub iterations: usize,
+    /// Per kind of residual (crossings strong, faint; centre; aim; roll): its share of the
+    /// redundancy, `Σ (w − h)`.
+    pub redundancy: [f64; 5],
+}
+
+impl Estimate {
+    /// One standard deviation of the relative depth `δZ / Z` of a point seen along `ray`
+    /// on laser `laser` of pose `pose`, from the pose's marginal covariance (the focal
+    /// scale's included). Infinite where the plane gives no depth there.
+    pub fn depth_sigma(&self, pose: usize, laser: usize, ray: &Ray) -> f64 {
+        let p = &self.poses[pose];
+        let lin = p.linearise(laser);
+        let rho = lin.n.dot(&ray.r) / lin.d;
+        if !(rho.is_finite() && rho > 0.0) {
+            return f64::INFINITY;
+        }
+        // ρ = n·r / d: ∂ρ/∂θ = (n × r)/d − (ρ/d)(n × C), ∂ρ/∂C = −(ρ/d) n,
+        // ∂ρ/∂λ = n·∂r/∂λ / d.
+        let dt = lin.n.cross(&ray.r) / lin.d - lin.dd_dtheta * (rho / lin.d);
+        let dc = -lin.n * (rho / lin.d);
+        let dl = lin.n.dot(&ray.dr_dscale) / lin.d;
+        let j = SVector::<f64, 7>::from_column_slice(&[dt.x, dt.y, dt.z, dc.x, dc.y, dc.z, dl]);
+        let var = (j.transpose() * self.marginals[pose] * j)[(0, 0)];
+        var.max(0.0).sqrt() / rho
+    }
+}
+
+/// Where the minimisation starts.
+#[derive(Clone, Debug)]
+pub struct Start {
+    pub poses: Vec<CrossPose>,
+    pub focal_scale: f64,
+    pub spreads: Spreads,
+}
+
+/// Three consecutive poses and their frame steps.
+#[derive(Clone, Copy, Debug)]
+struct Triple {
+    poses: [u32; 3],
+    h: [f64; 2],
+}
+
+/// The fixed structure of a problem: which terms exist and where their unknowns are.
+struct Layout<'a> {
+    evidence: &'a Evidence,
+    params: &'a EstimateParams,
+    triples: Vec<Triple>,
+    /// Number of unknowns: six per pose, one more with the focal scale.
+    n: usize,
+}
+
+/// Floor of every spread, relative to a typical value of its kind: below it the data
+/// would be exact to rounding and the weights unbounded.
+const SPREAD_FLOOR: f64 = 1e-6;
+/// Relative change of the spreads below which the rounds stop.
+const SPREAD_SETTLED: f64 = 0.05;
+/// A step that lowers the cost by less than this share of it ends the minimisation.
+const COST_SETTLED: f64 = 1e-9;
+/// Ridge on the diagonal, relative to its mean: directions no term sees (the turn of a
+/// laser never observed) get a finite, huge variance instead of a singular matrix.
+const RIDGE: f64 = 1e-10;
+
+impl<'a> Layout<'a> {
+    fn new(evidence: &'a Evidence, params: &'a EstimateParams) -> Self {
+        let f = &evidence.pose_frames;
+        let triples = if params.motion {
+            (2..f.len())
+                .map(|i| Triple {
+                    poses: [i as u32 - 2, i as u32 - 1, i as u32],
+                    h: [(f[i - 1] - f[i - 2]) as f64, (f[i] - f[i - 1]) as f64],
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let n = POSE_DOF * f.len() + usize::from(params.estimate_focal);
+        Self {
+            evidence,
+            params,
+            triples,
+            n,
+        }
+    }
+
+    fn focal_index(&self) -> Option<usize> {
+        self.params
+            .estimate_focal
+            .then_some(POSE_DOF * self.evidence.num_poses())
+    }
+
+    /// The crossing term of observation `k`, or `None` where it cannot be evaluated.
+    fn crossing(
+        &self,
+        state: &State,
+        k: usize,
+        rays: &[Option<Ray>],
+    ) -> Option<terms::CrossingTerm> {
+        let ev = self.evidence;
+        let c = &ev.crossings[k];
+        let (a, b) = (ev.planes[c.a as usize], ev.planes[c.b as usize]);
+        let ray = rays[k].as_ref()?;
+        terms::crossing(
+            &state.poses[a.pose as usize],
+            usize::from(a.laser),
+            &state.poses[b.pose as usize],
+            usize::from(b.laser),
+            ray,
+            ev.focal_px,
+            state.focal_scale,
+        )
+    }
+
+    fn rays(&self, lambda: f64) -> Vec<Option<Ray>> {
+        self.evidence
+            .crossings
+            .iter()
+            .map(|c| self.evidence.rays.ray(c.u, lambda))
+            .collect()
+    }
+
+    fn motion_terms(&self, state: &State, t: &Triple) -> (MotionTerm, MotionTerm) {
+        let p = t.poses.map(|i| &state.poses[i as usize]);
+        (
+            terms::centre_motion(p, t.h[0], t.h[1]),
+            terms::rotation_motion(p, t.h[0], t.h[1]),
+        )
+    }
+
+    fn crossing_loss(&self) -> Loss {
+        Loss::Cauchy(self.params.crossing_loss)
+    }
+
+    fn motion_loss(&self) -> Loss {
+        Loss::Huber(self.params.motion_loss)
+    }
+
+    /// The robust cost at `state`.
+    fn cost(&self, state: &State, spreads: &Spreads) -> f64 {
+        let rays = self.rays(state.focal_scale);
+        let mut cost = 0.0;
+        for k in 0..self.evidence.crossings.len() {
+            if let Some(t) = self.crossing(state, k, &rays) {
+                let sigma = spreads.crossing_px[self.evidence.crossings[k].class as usize];
+                cost += self.crossing_loss().cost(t.e / sigma);
+            }
+        }
+        for t in &self.triples {
+            let (c, r) = self.motion_terms(state, t);
+            cost += self.motion_cost(&c, &r, spreads);
+        }
+        cost
+    }
+
+    fn motion_cost(&self, c: &MotionTerm, r: &MotionTerm, s: &Spreads) -> f64 {
+        let loss = self.motion_loss();
+        loss.cost(c.r.norm() / s.centre)
+            + loss.cost(r.r.xy().norm() / s.aim_rad)
+            + loss.cost(r.r.z / s.roll_rad)
+    }
+
+    /// The normal equations `H δ = −g` at `state` (robust weights from its residuals) and
+    /// the robust cost there.
+    fn normal_equations(&self, state: &State, spreads: &Spreads) -> (Mat<f64>, Vec<f64>, f64) {
+        let n = self.n;
+        let mut h = Mat::<f64>::zeros(n, n);
+        let mut g = vec![0.0; n];
+        let mut cost = 0.0;
+        let rays = self.rays(state.focal_scale);
+        let fi = self.focal_index();
+        let ev = self.evidence;
+        for k in 0..ev.crossings.len() {
+            let Some(t) = self.crossing(state, k, &rays) else {
+                continue;
+            };
+            let c = &ev.crossings[k];
+            let sigma = spreads.crossing_px[c.class as usize];
+            let x = t.e / sigma;
+            cost += self.crossing_loss().cost(x);
+            let w = self.crossing_loss().weight(x) / (sigma * sigma);
+            let (pa, pb) = (
+                ev.planes[c.a as usize].pose as usize * POSE_DOF,
+                ev.planes[c.b as usize].pose as usize * POSE_DOF,
+            );
+            let mut idx = [0usize; 13];
+            let mut jac = [0.0; 13];
+            for i in 0..6 {
+                idx[i] = pa + i;
+                jac[i] = t.ja[i];
+                idx[6 + i] = pb + i;
+                jac[6 + i] = t.jb[i];
+            }
+            let len = match fi {
+                Some(f) => {
+                    idx[12] = f;
+                    jac[12] = t.j_scale;
+                    13
+                }
+                None => 12,
+            };
+            accumulate(&mut h, &mut g, &idx[..len], &jac[..len], w, t.e);
+        }
+        for t in &self.triples {
+            let (cm, rm) = self.motion_terms(state, t);
+            cost += self.motion_cost(&cm, &rm, spreads);
+            let loss = self.motion_loss();
+            // Centre: one weight for the vector (isotropic), from its length.
+            let wc = loss.weight(cm.r.norm() / spreads.centre) / spreads.centre.powi(2);
+            let wa = loss.weight(rm.r.xy().norm() / spreads.aim_rad) / spreads.aim_rad.powi(2);
+            let wr = loss.weight(rm.r.z / spreads.roll_rad) / spreads.roll_rad.powi(2);
+            for row in 0..3 {
+                let mut idx = [0usize; 9];
+                let mut jc = [0.0; 9];
+                let mut jr = [0.0; 9];
+                for (s, &p) in t.poses.iter().enumerate() {
+                    for col in 0..3 {
+                        let base = p as usize * POSE_DOF;
+                        idx[3 * s + col] = base + col;
+                        jr[3 * s + col] = rm.j[s][(row, col)];
+                        jc[3 * s + col] = cm.j[s][(row, col)];
+                    }
+                }
+                let w_rot = if row == 2 { wr } else { wa };
+                accumulate(&mut h, &mut g, &idx, &jr, w_rot, rm.r[row]);
+                let cidx = idx.map(|i| i + 3);
+                accumulate(&mut h, &mut g, &cidx, &jc, wc, cm.r[row]);
+            }
+        }
+        (h, g, cost)
+    }
+}
+
+/// `H += w j jᵀ` (its lower triangle, row ≥ column) and `g += w j e` over the unknowns
+/// `idx` (one term's row; an unknown may appear twice, as when both planes of a crossing
+/// are one pose's).
+fn accumulate(h: &mut Mat<f64>, g: &mut [f64], idx: &[usize], jac: &[f64], w: f64, e: f64) {
+    for (&jb, &ib) in jac.iter().zip(idx) {
+        if jb == 0.0 {
+            continue;
+        }
+        g[ib] += w * jb * e;
+        let wj = w * jb;
+        let col = h.col_as_slice_mut(ib);
+        for (&ja, &ia) in jac.iter().zip(idx) {
+            if ia >= ib {
+                col[ia] += wj * ja;
+            }
+        }
+    }
+}
+
+/// The poses and focal scale being estimated.
+#[derive(Clone, Debug)]
+struct State {
+    poses: Vec<CrossPose>,
+    focal_scale: f64,
+}
+
+impl State {
+    /// The state moved by `step` (local parameters).
+    fn moved(&self, step: &[f64], focal: Option<usize>) -> State {
+        let mut next = self.clone();
+        for (i, p) in next.poses.iter_mut().enumerate() {
+            p.retract(&step[POSE_DOF * i..POSE_DOF * (i + 1)]);
+        }
+        if let Some(f) = focal {
+            next.focal_scale += step[f];
+        }
+        next
+    }
+}
+
+/// `∂ log ρ` of the inverse depth `ρ = n·r / d` of laser `laser` of `pose` along `ray`,
+/// with respect to the pose's `(δθ, δC)` and the focal scale; `None` where `ρ` is 0.
+fn log_depth_gradient(pose: &CrossPose, laser: usize, ray: &Ray) -> Option<([f64; 6], f64)> {
+    let lin = pose.linearise(laser);
+    let nr = lin.n.dot(&ray.r);
+    if nr == 0.0 || lin.d == 0.0 {
+        return None;
+    }
+    let t = lin.n.cross(&ray.r) / nr - lin.dd_dtheta / lin.d;
+    let c = -lin.n / lin.d;
+    Some((
+        [t.x, t.y, t.z, c.x, c.y, c.z],
+        lin.n.dot(&ray.dr_dscale) / nr,
+    ))
+}
+
+impl Layout<'_> {
+    /// The gauge: the mean log inverse depth over the crossings' planes, and its
+    /// gradient. Holding it fixes the global scale without touching anything a crossing
+    /// determines or leaves free: the turn of a plane about the line of its crossings
+    /// moves no depth at them, so it stays free, where holding the centres' scale would
+    /// pin it.
+    fn gauge(&self, state: &State, rays: &[Option<Ray>]) -> (f64, Vec<f64>) {
+        let ev = self.evidence;
+        let mut grad = vec![0.0; self.n];
+        let (mut sum, mut count) = (0.0, 0usize);
+        let fi = self.focal_index();
+        for (c, ray) in ev.crossings.iter().zip(rays) {
+            let Some(ray) = ray else { continue };
+            for p in [c.a, c.b] {
+                let slot = ev.planes[p as usize];
+                let pose = &state.poses[slot.pose as usize];
+                let Some(v) = pose.plane(usize::from(slot.laser)) else {
+                    continue;
+                };
+                let rho = v.dot(&ray.r);
+                let Some((g, gl)) = log_depth_gradient(pose, usize::from(slot.laser), ray) else {
+                    continue;
+                };
+                sum += rho.abs().ln();
+                count += 1;
+                let base = slot.pose as usize * POSE_DOF;
+                for (i, gi) in g.iter().enumerate() {
+                    grad[base + i] += gi;
+                }
+                if let Some(f) = fi {
+                    grad[f] += gl;
+                }
+            }
+        }
+        let k = count.max(1) as f64;
+        for x in &mut grad {
+            *x /= k;
+        }
+        (sum / k, grad)
+    }
+
+    /// Rescales the centres so that the gauge is `target` again (the crossings' costs do
+    /// not change; the motion terms' do).
+    fn renormalise(&self, state: &mut State, target: f64) {
+        let rays = self.rays(state.focal_scale);
+        let (now, _) = self.gauge(state, &rays);
+        let s = (now - target).exp();
+        if s.is_finite() && s > 0.0 {
+            for p in &mut state.poses {
+                p.centre *= s;
+            }
+        }
+    }
+}
+
+/// Completes `h`'s lower triangle into a full symmetric matrix, adds the gauge row
+/// `gauge` (weight: the mean diagonal) and the ridge.
+fn regularise(h: &mut Mat<f64>, gauge: &[f64]) {
+    let n = h.nrows();
+    for j in 0..n {
+        for i in 0..j {
+            let v = h[(j, i)];
+            h[(i, j)] = v;
+        }
+    }
+    let mean_diag = (0..n).map(|i| h[(i, i)]).sum::<f64>() / n.max(1) as f64;
+    let norm = gauge.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if norm > 0.0 {
+        let scale = mean_diag / (norm * norm);
+        for (j, &gj) in gauge.iter().enumerate() {
+            if gj == 0.0 {
+                continue;
+            }
+            let col = h.col_as_slice_mut(j);
+            for (i, &gi) in gauge.iter().enumerate() {
+                col[i] += scale * gi * gj;
+            }
+        }
+    }
+    let ridge = RIDGE * mean_diag.max(f64::MIN_POSITIVE);
+    for i in 0..n {
+        h[(i, i)] += ridge;
+    }
+}
+
+/// Solves `(H + μ diag H) δ = −g`; `None` if it does not factor.
+fn damped_step(h: &Mat<f64>, g: &[f64], mu: f64) -> Option<Vec<f64>> {
+    let n = h.nrows();
+    let mut a = h.clone();
+    for i in 0..n {
+        let d = h[(i, i)];
+        a[(i, i)] = d + mu * d;
+    }
+    let llt = a.llt(faer::Side::Lower).ok()?;
+    let mut step = Mat::<f64>::from_fn(n, 1, |i, _| -g[i]);
+    faer::linalg::solvers::Solve::solve_in_place(&llt, step.as_mut());
+    let out: Vec<f64> = (0..n).map(|i| step[(i, 0)]).collect();
+    out.iter().all(|x| x.is_finite()).then_some(out)
+}
+
+/// Levenberg–Marquardt from `state` at fixed spreads; returns the state, its cost and
+/// the steps taken.
+fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64, usize) {
+    let focal = layout.focal_index();
+    let target = layout.gauge(&state, &layout.rays(state.focal_scale)).0;
+    let mut mu = 1e-4;
+    let mut steps = 0;
+    let mut current = layout.cost(&state, spreads);
+    for _ in 0..layout.params.max_iterations {
+        let (mut h, g, _) = layout.normal_equations(&state, spreads);
+        let (_, gauge) = layout.gauge(&state, &layout.rays(state.focal_scale));
+        regularise(&mut h, &gauge);
+        let mut accepted = None;
+        for _ in 0..10 {
+            if let Some(step) = damped_step(&h, &g, mu) {
+                let mut trial = state.moved(&step, focal);
+                layout.renormalise(&mut trial, target);
+                let c = layout.cost(&trial, spreads);
+                if c.is_finite() && c < current && trial.focal_scale > 0.0 {
+                    accepted = Some((trial, c));
+                    mu = (mu / 3.0).max(1e-12);
+                    break;
+                }
+            }
+            mu *= 10.0;
+        }
+        let Some((trial, c)) = accepted else { break };
+        let settled = current - c <= COST_SETTLED * current.max(f64::MIN_POSITIVE);
+        state = trial;
+        current = c;
+        steps += 1;
+        if settled {
+            break;
+        }
+    }
+    (state, current, steps)
+}
+
+/// The full covariance at `state`: the inverse of the information matrix with the gauge
+/// and ridge. `None` if it does not factor.
+fn covariance(layout: &Layout, state: &State, spreads: &Spreads) -> Option<Mat<f64>> {
+    let (mut h, _, _) = layout.normal_equations(state, spreads);
+    let (_, gauge) = layout.gauge(state, &layout.rays(state.focal_scale));
+    regularise(&mut h, &gauge);
+    let llt = h.llt(faer::Side::Lower).ok()?;
+    Some(faer::linalg::solvers::DenseSolveCore::inverse(&llt))
+}
+
+/// `j Σ jᵀ` over the unknowns `idx`.
+fn quadratic_form(cov: &Mat<f64>, idx: &[usize], j: &[f64]) -> f64 {
+    let mut s = 0.0;
+    for (a, &ia) in idx.iter().enumerate() {
+        let col = cov.col_as_slice(ia);
+        let mut t = 0.0;
+        for (b, &ib) in idx.iter().enumerate() {
+            t += col[ib] * j[b];
+        }
+        s += j[a] * t;
+    }
+    s
+}
+
+/// Förstner's variance components: per kind of residual, `(Σ w e², Σ (w − h))` with `w`
+/// the robust weight and `h = w jΣjᵀ/σ²` the leverage (weights and leverages of the
+/// components of a motion term summed).
+fn variance_components(
+    layout: &Layout,
+    state: &State,
+    spreads: &Spreads,
+    cov: &Mat<f64>,
+) -> [(f64, f64); 5] {
+    let mut acc = [(0.0, 0.0); 5];
+    let ev = layout.evidence;
+    let rays = layout.rays(state.focal_scale);
+    let fi = layout.focal_index();
+    let closs = layout.crossing_loss();
+    for k in 0..ev.crossings.len() {
+        let Some(t) = layout.crossing(state, k, &rays) else {
+            continue;
+        };
+        let c = &ev.crossings[k];
+        let sigma = spreads.crossing_px[c.class as usize];
+        let w = closs.weight(t.e / sigma);
+        let (pa, pb) = (
+            ev.planes[c.a as usize].pose as usize * POSE_DOF,
+            ev.planes[c.b as usize].pose as usize * POSE_DOF,
+        );
+        let mut idx: Vec<usize> = (pa..pa + 6).chain(pb..pb + 6).collect();
+        let mut j: Vec<f64> = t.ja.iter().chain(&t.jb).copied().collect();
+        if let Some(f) = fi {
+            idx.push(f);
+            j.push(t.j_scale);
+        }
+        let lev = w * quadratic_form(cov, &idx, &j) / (sigma * sigma);
+        let slot = &mut acc[c.class as usize];
+        slot.0 += w * t.e * t.e;
+        slot.1 += w - lev;
+    }
+    let mloss = layout.motion_loss();
+    for t in &layout.triples {
+        let (cm, rm) = layout.motion_terms(state, t);
+        let wc = mloss.weight(cm.r.norm() / spreads.centre);
+        let wa = mloss.weight(rm.r.xy().norm() / spreads.aim_rad);
+        let wr = mloss.weight(rm.r.z / spreads.roll_rad);
+        for row in 0..3 {
+            let mut idx = [0usize; 9];
+            let mut jc = [0.0; 9];
+            let mut jr = [0.0; 9];
+            for (s, &p) in t.poses.iter().enumerate() {
+                for col in 0..3 {
+                    idx[3 * s + col] = p as usize * POSE_DOF + col;
+                    jr[3 * s + col] = rm.j[s][(row, col)];
+                    jc[3 * s + col] = cm.j[s][(row, col)];
+                }
+            }
+            let cidx = idx.map(|i| i + 3);
+            let lc = wc * quadratic_form(cov, &cidx, &jc) / spreads.centre.powi(2);
+            acc[2].0 += wc * cm.r[row] * cm.r[row];
+            acc[2].1 += wc - lc;
+            let (slot, w, sigma) = if row == 2 {
+                (3 + 1, wr, spreads.roll_rad)
+            } else {
+                (3, wa, spreads.aim_rad)
+            };
+            let lr = w * quadratic_form(cov, &idx, &jr) / (sigma * sigma);
+            acc[slot].0 += w * rm.r[row] * rm.r[row];
+            acc[slot].1 += w - lr;
+        }
+    }
+    acc
+}
+
+/// Spreads from the variance components; a kind whose redundancy is too small to
+/// measure (under one residual's worth) keeps its spread.
+fn updated_spreads(old: &Spreads, comp: &[(f64, f64); 5]) -> Spreads {
+    let pick = |(ss, r): (f64, f64), old: f64| {
+        if r >= 1.0 && ss > 0.0 {
+            (ss / r).sqrt().max(SPREAD_FLOOR * old)
+        } else {
+            old
+        }
+    };
+    Spreads {
+        crossing_px: [
+            pick(comp[0], old.crossing_px[0]),
+            pick(comp[1], old.crossing_px[1]),
+        ],
+        centre: pick(comp[2], old.centre),
+        aim_rad: pick(comp[3], old.aim_rad),
+        roll_rad: pick(comp[4], old.roll_rad),
+    }
+}
+
+fn relative_change(a: &Spreads, b: &Spreads) -> f64 {
+    let pairs = [
+        (a.crossing_px[0], b.crossing_px[0]),
+        (a.crossing_px[1], b.crossing_px[1]),
+        (a.centre, b.centre),
+        (a.aim_rad, b.aim_rad),
+        (a.roll_rad, b.roll_rad),
+    ];
+    pairs
+        .iter()
+        .map(|(x, y)| ((x - y) / x.max(f64::MIN_POSITIVE)).abs())
+        .fold(0.0, f64::max)
+}
+
+/// Minimises from `start`, measures the spreads, and repeats until they settle; then the
+/// covariance. See the module docs.
+pub fn estimate(
+    evidence: &Evidence,
+    start: &Start,
+    params: &EstimateParams,
+) -> Result<Estimate, SolveError> {
+    evidence.validate().map_err(SolveError::InvalidProblem)?;
+    if start.poses.len() != evidence.num_poses() {
+        return Err(SolveError::InvalidProblem(format!(
+            "{} start poses for {} poses",
+            start.poses.len(),
+            evidence.num_poses()
+        )));
+    }
+    if evidence.num_poses() == 0 {
+        return Err(SolveError::TooFewPlanes {
+            found: 0,
+            needed: 4,
+        });
+    }
+    let layout = Layout::new(evidence, params);
+    let mut state = State {
+        poses: start.poses.clone(),
+        focal_scale: start.focal_scale,
+    };
+    let mut spreads = start.spreads;
+    let mut iterations = 0;
+    let mut cost;
+    let mut cov;
+    let mut comp;
+    let mut round = 0;
+    loop {
+        let (s, c, steps) = minimise(&layout, state, &spreads);
+        state = s;
+        cost = c;
+        iterations += steps;
+        cov = covariance(&layout, &state, &spreads).ok_or(SolveError::Degenerate(
+            "the information matrix does not factor",
+        ))?;
+        comp = variance_components(&layout, &state, &spreads, &cov);
+        round += 1;
+        let next = updated_spreads(&spreads, &comp);
+        let change = relative_change(&spreads, &next);
+        tracing::debug!(round, cost, steps, ?next, change, "estimator round");
+        if round >= params.variance_rounds || change < SPREAD_SETTLED {
+            break;
+        }
+        spreads = next;
+    }
+    let rays = layout.rays(state.focal_scale);
+    let loss = layout.crossing_loss();
+    let (mut weights, mut residuals) = (Vec::new(), Vec::new());
+    for k in 0..evidence.crossings.len() {
+        match layout.crossing(&state, k, &rays) {
+            Some(t) => {
+                let sigma = spreads.crossing_px[evidence.crossings[k].class as usize];
+                weights.push(loss.weight(t.e / sigma) as f32);
+                residuals.push((t.e / sigma) as f32);
+            }
+            None => {
+                weights.push(0.0);
+                residuals.push(f32::NAN);
+            }
+        }
+    }
+    let fi = layout.focal_index();
+    let marginals = (0..evidence.num_poses())
+        .map(|p| {
+            let mut idx = [0usize; 7];
+            for (a, slot) in idx.iter_mut().enumerate().take(6) {
+                *slot = p * POSE_DOF + a;
+            }
+            PoseMarginal::from_fn(|i, j| {
+                let (ii, jj) = (idx[i], idx[j]);
+                match (i == 6, j == 6, fi) {
+                    (false, false, _) => cov[(ii, jj)],
+                    (true, true, Some(f)) => cov[(f, f)],
+                    (true, false, Some(f)) => cov[(f, jj)],
+                    (false, true, Some(f)) => cov[(ii, f)],
+                    _ => 0.0,
+                }
+            })
+        })
+        .collect();
+    Ok(Estimate {
+        poses: state.poses,
+        focal_scale: state.focal_scale,
+        spreads,
+        crossing_weights: weights,
+        crossing_residuals: residuals,
+        marginals,
+        cost,
+        iterations,
+        redundancy: comp.map(|(_, r)| r),
+    })
+}
+
+/// Whether `class` crossings exist in `evidence` (their spread is measured only then).
+pub fn has_class(evidence: &Evidence, class: CrossingClass) -> bool {
+    evidence.crossings.iter().any(|c| c.class == class)
+}
+
+/// The centre's typical size in the solution (RMS of the centres), for scale-free
+/// thresholds on the centre spread.
+pub fn centre_scale(poses: &[CrossPose]) -> f64 {
+    let s: f64 = poses.iter().map(|p| p.centre.norm_squared()).sum();
+    (s / poses.len().max(1) as f64).sqrt()
+}

@@ -1,0 +1,408 @@
+//! The joint estimator against analytic truth: a smooth hand path over the synthetic
+//! room of [`super::synthetic`], its crossings computed exactly (and noised where said).
+
+use nalgebra::{Rotation3, Vector3};
+
+use super::estimate::{estimate, EstimateParams, Spreads, Start};
+use super::evidence::{CrossingClass, Evidence, Observation, PlaneSlot, Ray, RayModel};
+use super::pose::CrossPose;
+use super::synthetic::{analytic_crossings, path_scan, PathScan, PathSpec, Rng, Scene};
+
+type V3 = Vector3<f64>;
+
+const FOCAL_PX: f64 = 1000.0;
+
+/// The evidence of `scan`: every frame a pose, both lasers planes, every analytic
+/// crossing (moved by Gaussian noise of `noise_px` pixels), kept where `keep` says.
+fn evidence_of(
+    scan: &PathScan,
+    noise_px: f64,
+    seed: u64,
+    keep: impl Fn(&Observation, &V3) -> bool,
+) -> Evidence {
+    let planes = scan.flat_planes();
+    let mut rng = Rng::new(seed);
+    let crossings = analytic_crossings(&scan.scene, &planes, 0.1)
+        .into_iter()
+        .filter_map(|c| {
+            let o = Observation {
+                a: c.a,
+                b: c.b,
+                u: [
+                    c.u[0] + noise_px / FOCAL_PX * rng.normal(),
+                    c.u[1] + noise_px / FOCAL_PX * rng.normal(),
+                ],
+                sin_angle: c.sin_angle,
+                class: CrossingClass::Strong,
+            };
+            let r = V3::new(c.u[0], c.u[1], 1.0);
+            let x = r / planes[c.a as usize].dot(&r);
+            keep(&o, &x).then_some(o)
+        })
+        .collect();
+    Evidence {
+        pose_frames: (0..scan.planes.len() as u32).collect(),
+        planes: (0..planes.len())
+            .map(|i| PlaneSlot {
+                pose: (i / 2) as u32,
+                laser: (i % 2) as u8,
+            })
+            .collect(),
+        crossings,
+        focal_px: FOCAL_PX,
+        rays: RayModel::default(),
+    }
+}
+
+/// The true poses of `scan`, their normals signed to turn smoothly.
+fn true_poses(scan: &PathScan) -> Vec<CrossPose> {
+    let mut poses: Vec<CrossPose> = scan
+        .planes
+        .iter()
+        .zip(&scan.centres)
+        .map(|(p, c)| CrossPose::from_planes([Some(p[0]), Some(p[1])], *c, None).expect("pose"))
+        .collect();
+    for f in 1..poses.len() {
+        poses[f] = poses[f].aligned_to(&poses[f - 1]);
+    }
+    poses
+}
+
+/// The true poses turned by about `angle` and moved by about `shift`, at random.
+fn perturbed(poses: &[CrossPose], angle: f64, shift: f64, seed: u64) -> Vec<CrossPose> {
+    let mut rng = Rng::new(seed);
+    poses
+        .iter()
+        .map(|p| {
+            let t = V3::new(rng.normal(), rng.normal(), rng.normal()) * angle;
+            CrossPose {
+                rotation: Rotation3::new(t).into_inner() * p.rotation,
+                centre: p.centre + V3::new(rng.normal(), rng.normal(), rng.normal()) * shift,
+            }
+        })
+        .collect()
+}
+
+fn spreads(px: f64) -> Spreads {
+    Spreads {
+        crossing_px: [px, 2.0 * px],
+        centre: 0.01,
+        aim_rad: 0.02,
+        roll_rad: 0.02,
+    }
+}
+
+fn ray(u: [f64; 2]) -> Ray {
+    Ray {
+        r: V3::new(u[0], u[1], 1.0),
+        dr_dscale: V3::zeros(),
+    }
+}
+
+/// Largest relative departure of the estimated inverse depths at the crossings from the
+/// truth's, after the one global scale (fitted as their median ratio).
+fn worst_depth_error(ev: &Evidence, scan: &PathScan, poses: &[CrossPose]) -> f64 {
+    let truth = scan.flat_planes();
+    let ratios: Vec<(f64, f64)> = ev
+        .crossings
+        .iter()
+        .flat_map(|c| [c.a, c.b].map(|p| (p, c.u)))
+        .map(|(p, u)| {
+            let slot = ev.planes[p as usize];
+            let r = V3::new(u[0], u[1], 1.0);
+            let est = poses[slot.pose as usize]
+                .plane(usize::from(slot.laser))
+                .expect("plane")
+                .dot(&r);
+            (est, truth[p as usize].dot(&r))
+        })
+        .collect();
+    let s = super::median(ratios.iter().map(|(e, t)| t / e).collect()).expect("crossings");
+    ratios
+        .iter()
+        .map(|(e, t)| (s * e / t - 1.0).abs())
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn the_joint_solve_recovers_exact_planes_from_noiseless_crossings() {
+    let scan = path_scan(&PathSpec::default());
+    let ev = evidence_of(&scan, 0.0, 1, |_, _| true);
+    assert!(ev.crossings.len() > 2000, "{}", ev.crossings.len());
+    for motion in [false, true] {
+        let start = Start {
+            poses: perturbed(&true_poses(&scan), 0.01, 0.02, 7),
+            focal_scale: 1.0,
+            spreads: spreads(0.1),
+        };
+        let params = EstimateParams {
+            motion,
+            ..EstimateParams::default()
+        };
+        let est = estimate(&ev, &start, &params).expect("estimate");
+        let worst = worst_depth_error(&ev, &scan, &est.poses);
+        assert!(
+            worst < 1e-6,
+            "motion {motion}: worst relative depth error {worst:e}"
+        );
+    }
+}
+
+/// A run of frames whose one laser's stripe lies on one wall and whose other laser is not
+/// seen, so that their crossings leave each plane free to turn about its line, while the
+/// hand drifts: the motion term must find their centres, and with them their turns.
+#[test]
+fn the_motion_term_recovers_a_drifting_centre() {
+    let spec = PathSpec {
+        frames: 80,
+        drift: 0.1,
+        ..PathSpec::default()
+    };
+    let scan = path_scan(&spec);
+    let full = evidence_of(&scan, 0.0, 2, |_, _| true);
+    let f = frame_on_two_facets(&full, &scan);
+    let run = f..f + 6;
+    let facet0 = scan.scene.facets[0];
+    let in_run = |p: u32| run.contains(&(p as usize / 2));
+    let ev = evidence_of(&scan, 0.1, 2, |o, x| {
+        let unseen = [o.a, o.b].iter().any(|p| in_run(*p) && p % 2 == 1);
+        !unseen && (!(in_run(o.a) || in_run(o.b)) || (facet0.dot(x) - 1.0).abs() < 1e-9)
+    });
+    let truth = true_poses(&scan);
+    let planes = scan.flat_planes();
+    // Off-wall points of the run's planes: where their stripes cross other facets.
+    let off_wall: Vec<(usize, usize, [f64; 2])> = full
+        .crossings
+        .iter()
+        .flat_map(|c| [(c.a, c.u), (c.b, c.u)])
+        .filter(|(p, u)| {
+            let r = V3::new(u[0], u[1], 1.0);
+            // Clearly off the wall: the turn about the wall line moves these.
+            in_run(*p)
+                && p % 2 == 0
+                && (facet0.dot(&(r / planes[*p as usize].dot(&r))) - 1.0).abs() > 0.05
+        })
+        .map(|(p, u)| (p as usize / 2, p as usize % 2, u))
+        .collect();
+    assert!(off_wall.len() > 10, "{}", off_wall.len());
+    let run_estimate = |motion: bool| {
+        let start = Start {
+            poses: perturbed(&truth, 0.003, 0.01, 9),
+            focal_scale: 1.0,
+            spreads: spreads(0.1),
+        };
+        let params = EstimateParams {
+            motion,
+            ..EstimateParams::default()
+        };
+        estimate(&ev, &start, &params).expect("estimate")
+    };
+    let with = run_estimate(true);
+    let without = run_estimate(false);
+    // The estimate's global scale, from the depths at the crossings.
+    let s = {
+        let ratios: Vec<f64> = ev
+            .crossings
+            .iter()
+            .map(|c| {
+                let slot = ev.planes[c.a as usize];
+                let r = V3::new(c.u[0], c.u[1], 1.0);
+                let v = with.poses[slot.pose as usize]
+                    .plane(usize::from(slot.laser))
+                    .expect("plane");
+                planes[c.a as usize].dot(&r) / v.dot(&r)
+            })
+            .collect();
+        super::median(ratios).expect("crossings")
+    };
+    let mut worst_ratio: f64 = 0.0;
+    for &(pose, laser, u) in &off_wall {
+        let r = V3::new(u[0], u[1], 1.0);
+        let v = with.poses[pose].plane(laser).expect("plane");
+        let err = (s * v.dot(&r) / planes[2 * pose + laser].dot(&r) - 1.0).abs();
+        let sigma = with.depth_sigma(pose, laser, &ray(u));
+        assert!(sigma < 0.02, "frame {pose}: the motion term leaves {sigma}");
+        worst_ratio = worst_ratio.max(err / sigma);
+        let loose = without.depth_sigma(pose, laser, &ray(u));
+        // Without it, only the crossings' scatter along their lines speaks of the turn.
+        assert!(
+            loose > 10.0 * sigma,
+            "frame {pose}: {loose} without motion, {sigma} with"
+        );
+    }
+    assert!(
+        worst_ratio < 4.0,
+        "an error of {worst_ratio} standard deviations"
+    );
+    // The run's centres, across their axes (along them no crossing or plane tells).
+    for pose in run {
+        let (e, t) = (&with.poses[pose], &truth[pose]);
+        let off = e.centre / s - t.centre;
+        let across = (off - t.axis() * t.axis().dot(&off)).norm();
+        assert!(
+            across < 0.1 * spec.drift,
+            "frame {pose}: centre {across} off across its axis"
+        );
+    }
+}
+
+/// The index of a frame whose two curves both cross curves on facet 0 and elsewhere.
+fn frame_on_two_facets(ev: &Evidence, scan: &PathScan) -> usize {
+    let facet0 = scan.scene.facets[0];
+    (10..scan.planes.len())
+        .find(|&f| {
+            let on = |pl: u32, on_wall: bool| {
+                ev.crossings.iter().any(|c| {
+                    (c.a == pl || c.b == pl) && {
+                        let r = V3::new(c.u[0], c.u[1], 1.0);
+                        let x = r / scan.flat_planes()[pl as usize].dot(&r);
+                        ((facet0.dot(&x) - 1.0).abs() < 1e-9) == on_wall
+                    }
+                })
+            };
+            (0..2).all(|k| {
+                let pl = (2 * f + k) as u32;
+                on(pl, true) && on(pl, false)
+            })
+        })
+        .expect("a frame across two facets")
+}
+
+#[test]
+fn crossings_all_on_one_3d_plane_give_no_information_about_turns() {
+    let scan = path_scan(&PathSpec::default());
+    let full = evidence_of(&scan, 0.0, 3, |_, _| true);
+    let f = frame_on_two_facets(&full, &scan);
+    let facet0 = scan.scene.facets[0];
+    let (p0, p1) = ((2 * f) as u32, (2 * f + 1) as u32);
+    // Frame f keeps only its crossings on facet 0: both its lines lie on that wall, and
+    // the cross may turn about them (orthogonality cannot stop it alone).
+    let ev = evidence_of(&scan, 0.05, 3, |o, x| {
+        let mine = [o.a, o.b].iter().any(|p| *p == p0 || *p == p1);
+        !mine || (facet0.dot(x) - 1.0).abs() < 1e-9
+    });
+    let start = Start {
+        poses: true_poses(&scan),
+        focal_scale: 1.0,
+        spreads: spreads(0.05),
+    };
+    let params = EstimateParams {
+        motion: false,
+        ..EstimateParams::default()
+    };
+    let est = estimate(&ev, &start, &params).expect("estimate");
+    let truth = scan.flat_planes();
+    // A point of each plane off the wall (its stretch on another facet) and one on it.
+    let sigma_at = |pl: u32, on_wall: bool| {
+        full.crossings
+            .iter()
+            .filter(|c| c.a == pl || c.b == pl)
+            .map(|c| {
+                let r = V3::new(c.u[0], c.u[1], 1.0);
+                let x = r / truth[pl as usize].dot(&r);
+                ((facet0.dot(&x) - 1.0).abs() < 1e-9, c.u)
+            })
+            .filter(|(w, _)| *w == on_wall)
+            .map(|(_, u)| est.depth_sigma(f, (pl - p0) as usize, &ray(u)))
+            .fold(0.0, f64::max)
+    };
+    for pl in [p0, p1] {
+        let (on, off) = (sigma_at(pl, true), sigma_at(pl, false));
+        assert!(on < 0.005, "plane {pl}: on the wall {on}");
+        assert!(
+            off > 100.0 * on && off > 0.05,
+            "plane {pl}: off the wall {off}, on {on}"
+        );
+    }
+    // A plane of a frame with crossings everywhere is determined everywhere.
+    let g = if f > 20 { f - 10 } else { f + 10 };
+    let est = &est;
+    let other = (0..2)
+        .flat_map(|k| {
+            let pl = (2 * g + k) as u32;
+            ev.crossings
+                .iter()
+                .filter(move |c| c.a == pl || c.b == pl)
+                .map(move |c| est.depth_sigma(g, k, &ray(c.u)))
+        })
+        .fold(0.0, f64::max);
+    assert!(other < 0.005, "{other}");
+}
+
+#[test]
+fn a_plane_with_collinear_crossings_gets_a_large_uncertainty() {
+    let scan = path_scan(&PathSpec::default());
+    let full = evidence_of(&scan, 0.0, 4, |_, _| true);
+    let f = frame_on_two_facets(&full, &scan);
+    let facet0 = scan.scene.facets[0];
+    let (p0, p1) = ((2 * f) as u32, (2 * f + 1) as u32);
+    // Laser 1 of frame f is not seen; laser 0's crossings all lie on one image line
+    // (its stripe on facet 0).
+    let ev = evidence_of(&scan, 0.05, 4, |o, x| {
+        if o.a == p1 || o.b == p1 {
+            return false;
+        }
+        !(o.a == p0 || o.b == p0) || (facet0.dot(x) - 1.0).abs() < 1e-9
+    });
+    let start = Start {
+        poses: true_poses(&scan),
+        focal_scale: 1.0,
+        spreads: spreads(0.05),
+    };
+    let params = EstimateParams {
+        motion: false,
+        ..EstimateParams::default()
+    };
+    let est = estimate(&ev, &start, &params).expect("estimate");
+    let truth = scan.flat_planes();
+    let off_line = full
+        .crossings
+        .iter()
+        .filter(|c| c.a == p0 || c.b == p0)
+        .filter(|c| {
+            let r = V3::new(c.u[0], c.u[1], 1.0);
+            let x = r / truth[p0 as usize].dot(&r);
+            (facet0.dot(&x) - 1.0).abs() > 1e-6
+        })
+        .map(|c| est.depth_sigma(f, 0, &ray(c.u)))
+        .fold(0.0, f64::max);
+    assert!(off_line > 0.05, "{off_line}");
+}
+
+/// A single wall: every crossing on one 3D plane. Without the hand's motion, the planes
+/// are free to turn about their lines, and the wall itself is free (the shift `w`): the
+/// information says so.
+#[test]
+fn a_single_wall_leaves_the_planes_undetermined() {
+    let scene = Scene {
+        facets: vec![V3::new(0.05, -0.03, 0.35)],
+        window: [-0.6, 0.6, -0.45, 0.45],
+    };
+    let scan = path_scan(&PathSpec {
+        scene,
+        ..PathSpec::default()
+    });
+    let ev = evidence_of(&scan, 0.05, 5, |_, _| true);
+    let start = Start {
+        poses: true_poses(&scan),
+        focal_scale: 1.0,
+        spreads: spreads(0.05),
+    };
+    let params = EstimateParams {
+        motion: false,
+        ..EstimateParams::default()
+    };
+    let est = estimate(&ev, &start, &params).expect("estimate");
+    // Off the wall (a point of the plane between the projector and the wall), nothing
+    // is known.
+    let c = ev
+        .crossings
+        .iter()
+        .find(|c| c.a == 60 || c.b == 60)
+        .expect("a crossing of frame 30's laser 0");
+    let r = V3::new(c.u[0], c.u[1], 1.0);
+    let on_wall = r / scan.planes[30][0].dot(&r);
+    let x = scan.centres[30] + (on_wall - scan.centres[30]) * 0.6;
+    let sigma = est.depth_sigma(30, 0, &ray([x.x / x.z, x.y / x.z]));
+    assert!(sigma > 0.05, "{sigma}");
+}
