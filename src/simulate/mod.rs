@@ -71,6 +71,7 @@
 //! | `texture` | `none`/`checker`/`noise` | `noise` | solid texture in world coordinates |
 //! | `texture_scale` | float | 0.05 × distance | texture cell size |
 //! | `texture_contrast` | float | 0.5 | albedo varies in `[1 − contrast, 1]` × albedo |
+//! | `texture_seed` | int | index | seed of the `noise` texture (the primitive's 0-based index by default; equal seeds let the pieces of one wall share one texture) |
 //!
 //! ```toml
 //! name = "wall"
@@ -99,6 +100,7 @@
 //! | `depth.pfm` | per-pixel Z in camera coordinates, NaN where no surface ([`crate::pfm`]) |
 //! | `lit.png` | 8-bit grey: 0 where no unshadowed stripe centre line inside a fan passed within 0.5 px of the pixel centre in any frame; elsewhere the largest peak contrast such a stripe had there (grey levels added to its strongest channel before noise and clipping, clamped to 1..=255). `compare --truth` counts every non-zero pixel as lit, and those of at least 5 × `noise_sigma` as visible. |
 //! | `truth.ply` | one point per pixel that sees a surface, camera coordinates, ambient colour |
+//! | `random.json` | only with `--random SEED` ([`random::Description`], `version` 1): `seed`, `kind` (`table`, `room`, `clutter`, `underwater`), `summary` (the one line `--describe` prints), `frames`, `layout`, and the drawn numbers: `distance`, camera (`width`, `height`, `fx`, `cx`, `cy`, `distortion`), cross (`lasers`, `power`, `fan_deg`), hand (`hand` = `standing`/`drifting`/`walking`, `baseline`, `baseline_direction`, `wobble_share`, `drift_share`, `walk_share` as fractions of the baseline, `roll_*`, `sweep_*`, `aim_deg_per_frame`), `medium`, `turbidity`, `ambient`, `encoding`, `jpeg_quality`, `noise_sigma` |
 //!
 //! `truth.json` fields: `version` (1), `scene`, `seed`, `medium`, `turbidity`,
 //! `noise_sigma`, `camera` ([`Camera`]), `lasers` (`[{name, rgb}]`, laser 0 first),
@@ -107,6 +109,7 @@
 //! [a, b, c]` with `aX + bY + cZ = 1` in camera coordinates).
 
 pub mod motion;
+pub mod random;
 pub mod render;
 pub mod scene;
 

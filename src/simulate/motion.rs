@@ -486,8 +486,8 @@ mod tests {
         let dev: Vec<f64> = ps.iter().map(|p| p.roll_rad.to_degrees() - 10.0).collect();
         let hi = dev.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
         let lo = dev.iter().cloned().fold(f64::INFINITY, f64::min);
-        assert!(hi <= 50.0 + 1e-9 && hi > 49.5, "{hi}");
-        assert!(lo >= -50.0 - 1e-9 && lo < -49.5, "{lo}");
+        assert!((49.5..=50.0 + 1e-9).contains(&hi), "{hi}");
+        assert!((-50.0 - 1e-9..=-49.5).contains(&lo), "{lo}");
         // Slow: under 3° a frame (2π 50 / 120 = 2.6).
         for w in dev.windows(2) {
             assert!((w[1] - w[0]).abs() < 2.7);

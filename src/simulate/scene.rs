@@ -386,6 +386,10 @@ pub struct PrimitiveSpec {
     pub texture_scale: Option<f64>,
     #[serde(default = "default_contrast")]
     pub texture_contrast: f64,
+    /// Seed of the noise texture (default: the primitive's index), so that the pieces
+    /// of one surface can share one texture.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texture_seed: Option<u64>,
 }
 
 fn default_arc_towards() -> [f64; 3] {
@@ -528,7 +532,7 @@ impl SceneSpec {
             ("roll_swing_period_frames", p.roll_swing_period_frames),
             ("roll_jitter_period_frames", p.roll_jitter_period_frames),
         ] {
-            if !(v > 0.0) {
+            if v <= 0.0 {
                 return Err(bad(format!("[projector] `{key}` must be positive")));
             }
         }
@@ -623,7 +627,7 @@ fn validate_primitive(p: &PrimitiveSpec) -> Result<(), String> {
         let axis = V3::from(b) - V3::from(a);
         let towards = V3::from(p.arc_towards.unwrap_or(default_arc_towards()));
         let across = axis.normalize().cross(&towards).norm();
-        if deg < 360.0 && a != b && !(across > 1e-6 * towards.norm()) {
+        if deg < 360.0 && a != b && (across.is_nan() || across <= 1e-6 * towards.norm()) {
             return Err("`arc_towards` is zero or parallel to the axis".into());
         }
     }
@@ -818,6 +822,7 @@ pub struct Material {
     pub texture: Texture,
     pub texture_scale: f64,
     pub texture_contrast: f64,
+    pub texture_seed: u64,
 }
 
 /// The scene in camera coordinates, ready for ray casting.
@@ -841,7 +846,7 @@ impl Scene {
         let default_scale = 0.05 * spec.distance();
         let mut geometry = Vec::with_capacity(spec.primitives.len());
         let mut materials = Vec::with_capacity(spec.primitives.len());
-        for p in &spec.primitives {
+        for (index, p) in spec.primitives.iter().enumerate() {
             let g = match p.shape {
                 Shape::Plane => {
                     let n = vec(p.normal.unwrap_or([0.0, 0.0, 1.0])).normalize();
@@ -912,6 +917,7 @@ impl Scene {
                 texture: p.texture,
                 texture_scale: p.texture_scale.unwrap_or(default_scale),
                 texture_contrast: p.texture_contrast,
+                texture_seed: p.texture_seed.unwrap_or(index as u64),
             });
         }
         Scene {
@@ -990,7 +996,7 @@ impl Scene {
                     0.0
                 }
             }
-            Texture::Noise => fbm(&p, hit.primitive as u64),
+            Texture::Noise => fbm(&p, m.texture_seed),
         };
         let k = 1.0 - m.texture_contrast * (1.0 - f);
         m.albedo.map(|a| a * k)
