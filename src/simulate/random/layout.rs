@@ -60,18 +60,20 @@ fn table(rng: &mut Rng, mut camera: CameraSpec, intrinsics: &Camera) -> (SceneSp
     let mut taken = Footprints(Vec::new());
     let (mut heights, mut extras): (Vec<f64>, Vec<&str>) = (Vec::new(), Vec::new());
     let boxes = rng.int(6, 10);
+    // Narrow views see a small patch of table: smaller bricks, so that they all fit.
+    let footprint = (d * intrinsics.width as f64 / intrinsics.fx / 0.7).clamp(0.4, 1.0);
     let with_can = rng.chance(0.5);
     let with_ball = rng.chance(0.3);
     for k in 0..boxes + usize::from(with_can) + usize::from(with_ball) {
-        for _ in 0..30 {
+        for _ in 0..60 {
             let Some(c) = ground_point(rng, &camera, intrinsics, 0.08, V3::zeros(), V3::z()) else {
                 continue;
             };
             let colour = look(rng, &TOY, 0.01);
             if k < boxes {
                 let (w, l, h) = (
-                    rng.uniform(0.03, 0.12),
-                    rng.uniform(0.03, 0.12),
+                    rng.uniform(0.03, 0.12) * footprint,
+                    rng.uniform(0.03, 0.12) * footprint,
                     rng.uniform(0.02, 0.06),
                 );
                 let r = 0.5 * w.hypot(l);
@@ -122,12 +124,10 @@ fn table(rng: &mut Rng, mut camera: CameraSpec, intrinsics: &Camera) -> (SceneSp
 
 fn clutter(rng: &mut Rng, mut camera: CameraSpec, intrinsics: &Camera) -> (SceneSpec, String) {
     let d = rng.uniform(1.0, 5.0);
-    let z_c = rng.uniform(0.8, 1.8);
-    let steepest = ((z_c - 0.1) / d)
-        .clamp(0.0, 1.0)
-        .asin()
-        .min(40f64.to_radians());
-    let pitch = rng.uniform(5f64.to_radians().min(steepest), steepest);
+    // Looking down at the clutter: the optical axis meets the floor or an object low
+    // on it, and the wall behind fills the top of the view.
+    let pitch = rng.uniform(15f64, 45.0).to_radians();
+    let z_c = d * pitch.sin() + rng.uniform(0.0, 0.3);
     let yaw = rng.uniform(-20f64, 20.0).to_radians();
     let ahead = V3::new(yaw.sin(), yaw.cos(), 0.0);
     let look_at = ahead * (d * pitch.cos()) + V3::z() * (z_c - d * pitch.sin());
@@ -158,7 +158,8 @@ fn clutter(rng: &mut Rng, mut camera: CameraSpec, intrinsics: &Camera) -> (Scene
             &look(rng, &NEUTRAL, 0.25),
         ));
     }
-    let s = (d / 3.0).clamp(0.35, 1.4);
+    // Object sizes scale with the width of the view at the scene distance.
+    let s = (0.45 * d * intrinsics.width as f64 / intrinsics.fx).clamp(0.3, 2.0);
     let mut taken = Footprints(vec![(V3::z() * z_c, 0.3 * d)]);
     let mut tops: Vec<(V3, f64)> = Vec::new();
     let (mut boxes, mut cylinders, mut spheres) = (0, 0, 0);

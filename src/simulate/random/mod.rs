@@ -168,8 +168,8 @@ impl Rng {
 ///   frames; roll mean ±45°, a sinusoid of 0-15° (period 20-60 frames), a swing of
 ///   15-60° once or twice per scan, a jitter of 0.5-3° (periods 3-7 frames); the aim
 ///   sweeps 1.0-1.3 × the image at 0.8-2° a frame ([`aim_deg_per_frame`]);
-/// - light: ambient 60-130 grey levels, from a random direction at least 25° up, flat
-///   share 0.35-0.8, background 5-30 (air);
+/// - light: ambient 60-130 grey levels, from at least 25° up and within 80° of the
+///   camera's back (seen from above), flat share 0.35-0.8, background 5-30 (air);
 /// - encoding: PNG (40 %) or JPEG at quality 80-95, noise σ 1.5-3 grey levels.
 pub fn draw(seed: u64, frames: usize) -> DrawnScan {
     let mut rng = Rng::new(seed);
@@ -290,13 +290,21 @@ fn draw_lasers(rng: &mut Rng, spec: &mut SceneSpec) {
 fn draw_light(rng: &mut Rng, spec: &mut SceneSpec) {
     let l = &mut spec.light;
     l.ambient = rng.uniform(60.0, 130.0);
-    let az = rng.uniform(0.0, std::f64::consts::TAU);
+    // From the camera's side (a lamp in the room, a diver's light), so that what the
+    // camera looks at is not all in the shade.
+    let forward = V3::from(spec.camera.look_at) - V3::from(spec.camera.position);
+    let mut back = V3::new(-forward.x, -forward.y, 0.0);
+    if back.norm() < 1e-9 {
+        back = V3::x();
+    }
+    let back = back.normalize();
+    let side = V3::z().cross(&back);
+    let az = rng.uniform(-80f64, 80.0).to_radians();
     let elevation = rng.uniform(25f64, 90.0).to_radians();
-    l.direction = [
-        elevation.cos() * az.cos(),
-        elevation.cos() * az.sin(),
-        elevation.sin(),
-    ];
+    l.direction = (back * (elevation.cos() * az.cos())
+        + side * (elevation.cos() * az.sin())
+        + V3::z() * elevation.sin())
+    .into();
     l.flat_fraction = rng.uniform(0.35, 0.8);
     let grey = rng.uniform(5.0, 30.0);
     l.background = [0, 1, 2].map(|_| (grey + rng.uniform(-3.0, 3.0)).max(0.0));
