@@ -6,57 +6,83 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
+use crossline::simulate::random::{self, DrawnScan};
 use crossline::simulate::{
-    builtin_scene, load_scene_file, write_sim_dir_as, FrameFormat, LaserColour, Medium, SimParams,
-    Simulator, BUILTIN_SCENES,
+    builtin_scene, load_scene_file, write_sim_dir_as, FrameFormat, LaserColour, Medium, SceneSpec,
+    SimParams, Simulator, BUILTIN_SCENES,
 };
 
 /// Render the image sequence a fixed camera would record of a hand-held cross line
 /// laser sweeping a scene, with exact ground truth.
 ///
 /// The scene is a built-in (room: a room corner at ~3.7 m; pipes: an underwater pipe
-/// rig at ~2.9 m; bricks: toy bricks on a table at ~0.6 m) or a scene TOML file (every
+/// rig at ~2.9 m; bricks: toy bricks on a table at ~0.6 m), a scene TOML file (every
 /// key is documented in the `crossline::simulate` module docs; the built-ins are
-/// examples, and every run writes its scene as DIR/scene.toml).
+/// examples, and every run writes its scene as DIR/scene.toml), or a random scan
+/// configuration drawn from a seed (--random): a table top, a room, clutter or an
+/// underwater scene with a random layout, camera (720p or 1080p, focal length, lens
+/// distortion), laser pair, hand path (baseline, wobble, drift or walk, roll swing,
+/// aim sweep), light and encoding. The same seed always draws the same
+/// configuration, so a set of seeds is a fixed benchmark of scans the algorithms were
+/// not tuned on. --describe prints the one-line summary of a draw without rendering.
 ///
 /// DIR receives frame_000000.png..., background.png (lasers off), camera.yml
 /// (OpenCV), camera_info.yaml (ROS), scene.toml, truth.json (projector pose and both
 /// laser planes per frame, camera coordinates), depth.pfm (per-pixel Z), lit.png
-/// (pixels a perfect scanner covers) and truth.ply (dense ground-truth cloud).
+/// (pixels a perfect scanner covers) and truth.ply (dense ground-truth cloud); with
+/// --random also random.json (seed, kind, summary and the drawn parameters).
 ///
-/// Example:
+/// Examples:
 ///
 ///   crossline simulate --scene pipes --frames 120 --turbidity 2 --out sim-pipes
+///   crossline simulate --random 7 --describe
+///   crossline simulate --random 7 --frames 300 --out sim-7
+///   for s in $(seq 1 24); do crossline simulate --random $s --describe; done
 #[derive(clap::Args)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
     /// Built-in scene name (room, pipes, bricks) or path to a scene TOML file.
-    #[arg(long, value_name = "NAME|FILE")]
-    scene: String,
-    /// Number of frames to render.
+    #[arg(
+        long,
+        value_name = "NAME|FILE",
+        required_unless_present = "random",
+        conflicts_with = "random"
+    )]
+    scene: Option<String>,
+    /// Draw a random scan configuration from seed S instead of a --scene. The flags
+    /// below that are given override the draw (--format, --noise, --width, --height,
+    /// --colours, --turbidity, --seed, --jpeg-quality); the rest is drawn.
+    #[arg(long, value_name = "S")]
+    random: Option<u64>,
+    /// With --random: print the draw's one-line summary and exit without rendering.
+    #[arg(long, requires = "random")]
+    describe: bool,
+    /// Number of frames to render (with --random, also the scan length that the roll
+    /// swings and the walk are drawn for).
     #[arg(long, value_name = "N", default_value_t = 120)]
     frames: usize,
     /// Seed of the projector motion and the sensor noise; the same seed gives the
-    /// same images on any number of threads.
-    #[arg(long, value_name = "S", default_value_t = 1)]
-    seed: u64,
+    /// same images on any number of threads [default: 1, or the --random seed].
+    #[arg(long, value_name = "S")]
+    seed: Option<u64>,
     /// Output folder (created if missing; existing files are overwritten).
-    #[arg(long, value_name = "DIR")]
-    out: PathBuf,
+    #[arg(long, value_name = "DIR", required_unless_present = "describe")]
+    out: Option<PathBuf>,
     /// Frame file format: `png` (lossless), `jpeg` (frame_NNNNNN.jpg at
     /// --jpeg-quality, default 92: what an MJPEG camera delivers) or `dump` (one
     /// DIR/frames.dump of MJPEG buffers in the recording format, for `reconstruct
-    /// --input DIR/frames.dump`).
-    #[arg(long, default_value = "png", value_name = "png|jpeg|dump")]
-    format: String,
+    /// --input DIR/frames.dump`) [default: png, or the --random draw's png or jpeg].
+    #[arg(long, value_name = "png|jpeg|dump")]
+    format: Option<String>,
     /// Water turbidity: > 0 renders under water (attenuation, forward scatter, glow
     /// of the laser sheets) with the scene's scattering scaled by T; 1 is the scene's
     /// nominal water. Overrides the scene's [water] turbidity.
     #[arg(long, value_name = "T")]
     turbidity: Option<f64>,
-    /// Standard deviation of the Gaussian sensor noise, grey levels (0 = none).
-    #[arg(long, value_name = "SIGMA", default_value_t = 2.0)]
-    noise: f64,
+    /// Standard deviation of the Gaussian sensor noise, grey levels (0 = none)
+    /// [default: 2, or the --random draw's].
+    #[arg(long, value_name = "SIGMA")]
+    noise: Option<f64>,
     /// JPEG quality Q (1-100): with --format png, every image passes through JPEG
     /// compression before it is saved as PNG, to add compression artefacts; with
     /// --format jpeg, the quality of the JPEG frames.
@@ -76,30 +102,48 @@ pub struct Args {
     threads: Option<usize>,
 }
 
+/// The scene named by --scene: a built-in or a file.
+fn load_scene(name: &str) -> anyhow::Result<SceneSpec> {
+    if let Some(spec) = builtin_scene(name) {
+        return Ok(spec);
+    }
+    let path = PathBuf::from(name);
+    if !path.exists() {
+        bail!(
+            "--scene {name}: neither a built-in scene ({}) nor an existing file",
+            BUILTIN_SCENES.join(", ")
+        );
+    }
+    load_scene_file(&path).context("loading the scene")
+}
+
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let format = match args.format.as_str() {
-        "png" => FrameFormat::Png,
-        "jpeg" | "jpg" => FrameFormat::Jpeg {
+    if args.describe && args.random.is_none() {
+        bail!("--describe describes a --random draw: give --random SEED");
+    }
+    let mut drawn: Option<DrawnScan> = args.random.map(|seed| random::draw(seed, args.frames));
+    let format = match args.format.as_deref() {
+        Some("png") => FrameFormat::Png,
+        Some("jpeg" | "jpg") => FrameFormat::Jpeg {
             quality: args.jpeg_quality.unwrap_or(92),
         },
-        "dump" => FrameFormat::Dump {
+        Some("dump") => FrameFormat::Dump {
             quality: args.jpeg_quality.unwrap_or(92),
         },
-        other => bail!("--format {other}: expected png, jpeg or dump"),
+        Some(other) => bail!("--format {other}: expected png, jpeg or dump"),
+        None => match drawn.as_ref().map(|d| d.format) {
+            Some(FrameFormat::Jpeg { quality }) => FrameFormat::Jpeg {
+                quality: args.jpeg_quality.unwrap_or(quality),
+            },
+            Some(other) => other,
+            None => FrameFormat::Png,
+        },
     };
-    let mut spec = match builtin_scene(&args.scene) {
-        Some(spec) => spec,
-        None => {
-            let path = PathBuf::from(&args.scene);
-            if !path.exists() {
-                bail!(
-                    "--scene {}: neither a built-in scene ({}) nor an existing file",
-                    args.scene,
-                    BUILTIN_SCENES.join(", ")
-                );
-            }
-            load_scene_file(&path).context("loading the scene")?
-        }
+    let mut spec = match (&drawn, &args.scene) {
+        (Some(d), _) => d.spec.clone(),
+        (None, Some(name)) => load_scene(name)?,
+        // clap requires one of the two.
+        (None, None) => bail!("give --scene or --random"),
     };
     if args.width.is_some() || args.height.is_some() {
         let c = &spec.camera;
@@ -128,17 +172,37 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             spec.medium = Medium::Water;
         }
     }
-    if !(args.noise >= 0.0 && args.noise.is_finite()) {
-        bail!("--noise {}: expected a number >= 0", args.noise);
+    let noise = args
+        .noise
+        .or(drawn.as_ref().map(|d| d.params.noise_sigma))
+        .unwrap_or(2.0);
+    if !(noise >= 0.0 && noise.is_finite()) {
+        bail!("--noise {noise}: expected a number >= 0");
     }
     let params = SimParams {
-        seed: args.seed,
-        noise_sigma: args.noise,
+        seed: args
+            .seed
+            .or(drawn.as_ref().map(|d| d.params.seed))
+            .unwrap_or(1),
+        noise_sigma: noise,
         // With JPEG frames the compression happens once, when they are written.
         jpeg_quality: match format {
             FrameFormat::Png => args.jpeg_quality,
             FrameFormat::Jpeg { .. } | FrameFormat::Dump { .. } => None,
         },
+    };
+    if let Some(d) = &mut drawn {
+        d.spec = spec.clone();
+        d.params = params.clone();
+        d.format = format;
+        d.summary = d.summarise();
+        if args.describe {
+            println!("{}", d.summary);
+            return Ok(ExitCode::SUCCESS);
+        }
+    }
+    let Some(out) = args.out else {
+        bail!("--out DIR is required");
     };
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(n) = args.threads {
@@ -162,12 +226,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let summary = pool.install(|| {
         let sim = Simulator::new(&spec, &params).context("preparing the scene")?;
         tracing::debug!("scene ray-cast in {:.2} s", start.elapsed().as_secs_f64());
-        write_sim_dir_as(&sim, args.frames, &args.out, format, |n| {
+        write_sim_dir_as(&sim, args.frames, &out, format, |n| {
             bar.set_position(n as u64)
         })
-        .with_context(|| format!("writing the simulation to {}", args.out.display()))
+        .with_context(|| format!("writing the simulation to {}", out.display()))
     })?;
     bar.finish_and_clear();
+    if let Some(d) = &drawn {
+        d.write_description(&out)
+            .with_context(|| format!("writing {}", out.join("random.json").display()))?;
+        tracing::info!("random scan {}: {}", d.seed, d.summary);
+    }
     let secs = start.elapsed().as_secs_f64();
     tracing::info!(
         "{} frames of scene {} ({}x{}) in {:.1} s ({:.1} frames/s) to {}; {} surface pixels, {} lit",
@@ -177,7 +246,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         spec.camera.height,
         secs,
         summary.frames as f64 / secs.max(1e-9),
-        args.out.display(),
+        out.display(),
         summary.surface_pixels,
         summary.lit_pixels
     );
