@@ -47,11 +47,11 @@
 #              is exactly 1 / FOCAL_OFF
 #   TIMEOUT    seconds after which a reconstruction counts as failed (default 0: none)
 #
-# How long (2 cores, 1920x1080, measured on the built-in room scene): one configuration
-# at 300 frames takes about 80 s: simulate 28 s (once; cached), self-calibrated
-# reconstruction 29 s, true planes 23 s, each compare about 3 s. The full 24 take
-# about 33 min the first time and about 22 min with the simulations cached; at
-# FRAMES=60 a configuration takes about 20 s.
+# How long (2 cores, measured on room and on random seeds 2 and 3): a configuration at
+# 300 frames takes 80-140 s the first time: simulate 28-100 s (under water is the
+# slowest; cached afterwards), each reconstruction 18-29 s, each compare about 1 s; so
+# 45-60 s with its simulation cached. The full 24 take about 40 min the first time and
+# about 20 min cached. At FRAMES=100 a configuration takes 15-35 s.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${CROSSLINE:-target/release/crossline}
