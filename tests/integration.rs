@@ -88,6 +88,60 @@ fn simulate_writes_a_complete_folder_deterministically_on_any_thread_count() {
 }
 
 #[test]
+fn simulate_random_renders_a_drawn_scan_and_describes_it() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let out = tmp.path().join("sim");
+    // Seed 5 draws a table top with PNG frames; --width overrides the draw.
+    let args = [
+        "simulate", "--random", "5", "--frames", "2", "--width", "320",
+    ];
+    run_ok(crossline().args(args).arg("--out").arg(&out));
+    let described = run_ok(crossline().args(args).arg("--describe"));
+    let line = String::from_utf8(described.stdout).expect("utf-8");
+    let info: Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("random.json")).expect("random.json"),
+    )
+    .expect("json");
+    assert_eq!(info["version"], 1);
+    assert_eq!(info["seed"], 5);
+    assert_eq!(info["frames"], 2);
+    assert_eq!(info["width"], 320);
+    let kind = info["kind"].as_str().expect("kind");
+    assert!(
+        ["table", "room", "clutter", "underwater"].contains(&kind),
+        "{kind}"
+    );
+    assert_eq!(line.trim_end(), info["summary"].as_str().expect("summary"));
+    assert!(line.starts_with(kind) && line.contains("320x"), "{line}");
+    let ext = if info["encoding"] == "jpeg" {
+        "jpg"
+    } else {
+        "png"
+    };
+    for file in [
+        format!("frame_000001.{ext}"),
+        "truth.json".into(),
+        "scene.toml".into(),
+        "camera.yml".into(),
+        "lit.png".into(),
+    ] {
+        assert!(out.join(&file).exists(), "{file} missing");
+    }
+    // The scene as rendered re-loads, and a --scene run of it is the same scene.
+    let spec = crossline::simulate::load_scene_file(&out.join("scene.toml")).expect("scene");
+    assert_eq!(spec.camera.width, 320);
+    // --random and --scene exclude each other (a usage error, exit code 2).
+    let refused = crossline()
+        .args(["simulate", "--random", "5", "--scene", "room", "--out"])
+        .arg(tmp.path().join("no"))
+        .output()
+        .expect("spawn crossline");
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(2), "{err}");
+    assert!(err.contains("--random") && err.contains("--scene"), "{err}");
+}
+
+#[test]
 fn reconstruct_then_compare_on_the_fixture() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let sim = fixtures().join("sim-bricks");

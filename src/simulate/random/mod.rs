@@ -43,15 +43,22 @@ pub const MIN_SURFACE_FRACTION: f64 = 0.85;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum SceneKind {
-    /// A table top seen from 0.5-0.9 m: one plane with 6-10 small boxes and maybe a
-    /// cylinder and a ball.
+    /// A table top seen from 0.5-0.9 m, looked down at 35-80° (the horizon never in
+    /// view): one plane with 6-10 boxes 2-6 cm high (footprints 3-12 cm, smaller in
+    /// narrow views), maybe a cylinder (1/2) and a ball (3/10).
     Table,
-    /// A room or a room's corner at 3-10 m: floor, walls, ceiling or a barrel vault,
-    /// niches in the far wall, a few large boxes and maybe a pillar.
+    /// A room at 3-10 m: floor, side walls and far wall, a flat ceiling or (2/5) a
+    /// barrel vault, 0-3 niches 15-50 cm deep in the far wall, 0-4 furniture boxes
+    /// and maybe a pillar; 3/10 are a room's corner (two walls, floor, ceiling).
     Room,
-    /// Many boxes, cylinders and spheres on a floor in front of a wall at 1-5 m.
+    /// 12-28 boxes (some stacked), upright or lying cylinders and spheres, sized by
+    /// the width of the view, on a floor before a back wall (and maybe a side wall) at
+    /// 1-5 m, looked down at 15-45°.
     Clutter,
-    /// Under water at 1.5-3.5 m, turbidity 0-1.5: seabed, pipes, rocks and blocks.
+    /// Under water at 1.5-3.5 m, turbidity 0-1.5 (absorption and scattering varied by
+    /// up to 25 %): a slightly tilted seabed looked down at (at least 25°, its far
+    /// edge no further than about 4 × the camera's height), 1-4 pipes (radius 5-30
+    /// cm, 1-4 m long, partly buried, some open), 3-10 rocks and 0-3 blocks.
     Underwater,
 }
 
@@ -152,7 +159,8 @@ impl Rng {
 /// Draws scan configuration `seed` of `frames` frames. The same seed always gives the
 /// same configuration. Ranges (uniform unless said otherwise):
 ///
-/// - kind: table, room, clutter, underwater (each 1/4; layouts in [`layout`]);
+/// - kind: table, room, clutter, underwater (each 1/4; the layouts of each are on
+///   [`SceneKind`]);
 /// - camera: 1280x720 or 1920x1080, `f` 800-2000 px, `k1` -0.3..0.1 (limited so the
 ///   lens model stays invertible 10 % beyond the image corner), `k2` small and mostly
 ///   against `k1`, `p1`, `p2` within ±5e-4, principal point within 1.5 % of the
