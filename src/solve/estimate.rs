@@ -101,6 +101,12 @@ pub struct Estimate {
     pub crossing_residuals: Vec<f32>,
     /// Per pose, the marginal covariance of `(δθ, δC, λ)`.
     pub marginals: Vec<PoseMarginal>,
+    /// Per pose, the part of the information that the crossings' scatter along their own
+    /// lines would give on its own, mapped to the pose's parameters as its marginal is
+    /// (`[Σ C Σ]_ff`, see [`Estimate::depth_sigma`]), and the number of crossings of the
+    /// pose, which says how far that part may fluctuate.
+    pub scatter: Vec<PoseMarginal>,
+    pub scatter_crossings: Vec<usize>,
     /// Final robust cost, in units of the spreads.
     pub cost: f64,
     pub iterations: usize,
@@ -127,7 +133,25 @@ impl Estimate {
         let dl = lin.n.dot(&ray.dr_dscale) / lin.d;
         let j = SVector::<f64, 7>::from_column_slice(&[dt.x, dt.y, dt.z, dc.x, dc.y, dc.z, dl]);
         let var = (j.transpose() * self.marginals[pose] * j)[(0, 0)];
-        var.max(0.0).sqrt() / rho
+        if var.is_nan() || var < 0.0 {
+            return f64::INFINITY;
+        }
+        if var == 0.0 {
+            return 0.0;
+        }
+        // Of the information the estimate has about this depth (1/var, along the direction
+        // z = Σq/var that estimates it), the crossings' scatter along their lines accounts
+        // for zᵀCz = qᵀ[ΣCΣ]q / var², a share `scatter` of it, give or take its own
+        // fluctuation over n crossings (three deviations of √(2/n) each): only the rest
+        // is evidence.
+        let scatter = (j.transpose() * self.scatter[pose] * j)[(0, 0)] / var;
+        let n = self.scatter_crossings[pose].max(1) as f64;
+        let margin = 1.0 + SCATTER_DEVIATIONS * (2.0 / n).sqrt();
+        let left = 1.0 - margin * scatter;
+        if left.is_nan() || left <= 0.0 {
+            return f64::INFINITY;
+        }
+        (var / left).sqrt() / rho
     }
 }
 
@@ -160,8 +184,14 @@ struct Layout<'a> {
 const SPREAD_FLOOR: f64 = 1e-6;
 /// Relative change of the spreads below which the rounds stop.
 const SPREAD_SETTLED: f64 = 0.05;
-/// A step that lowers the cost by less than this share of it ends the minimisation.
-const COST_SETTLED: f64 = 1e-9;
+/// The minimisation ends when what is left to gain is under this, in units of the
+/// spreads squared: the parameters are then within a fraction of a standard deviation
+/// of the minimum. What is left is judged from the last decrease and how fast the
+/// decreases shrink (a geometric tail, as iteratively reweighted steps give).
+const COST_SETTLED: f64 = 1.0;
+/// How many of its own deviations the information that the crossings' scatter along
+/// their lines gives is allowed to fluctuate by before the rest counts as evidence.
+const SCATTER_DEVIATIONS: f64 = 3.0;
 /// Ridge on the diagonal, relative to its mean: directions no term sees (the turn of a
 /// laser never observed) get a finite, huge variance instead of a singular matrix.
 const RIDGE: f64 = 1e-10;
@@ -499,6 +529,7 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
     let mut mu = 1e-4;
     let mut steps = 0;
     let mut current = layout.cost(&state, spreads);
+    let mut last_decrease = f64::INFINITY;
     for _ in 0..layout.params.max_iterations {
         let (mut h, g, _) = layout.normal_equations(&state, spreads);
         let (_, gauge) = layout.gauge(&state, &layout.rays(state.focal_scale));
@@ -518,7 +549,16 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
             mu *= 10.0;
         }
         let Some((trial, c)) = accepted else { break };
-        let settled = current - c <= COST_SETTLED * current.max(f64::MIN_POSITIVE);
+        let decrease = current - c;
+        tracing::trace!(steps, cost = c, decrease, mu, "step");
+        let ratio = decrease / last_decrease;
+        let left = if last_decrease.is_finite() && ratio < 1.0 {
+            decrease * ratio / (1.0 - ratio)
+        } else {
+            f64::INFINITY
+        };
+        let settled = decrease < 0.1 * COST_SETTLED || left < COST_SETTLED;
+        last_decrease = decrease;
         state = trial;
         current = c;
         steps += 1;
@@ -724,6 +764,7 @@ pub fn estimate(
             }
         }
     }
+    let (scatter, scatter_crossings) = scatter_information(&layout, &state, &spreads, &cov);
     let fi = layout.focal_index();
     let marginals = (0..evidence.num_poses())
         .map(|p| {
@@ -750,10 +791,94 @@ pub fn estimate(
         crossing_weights: weights,
         crossing_residuals: residuals,
         marginals,
+        scatter,
+        scatter_crossings,
         cost,
         iterations,
         redundancy: comp.map(|(_, r)| r),
     })
+}
+
+/// The information that the crossings' scatter along their own lines alone would give.
+///
+/// A crossing's residual is its distance from the line `l` where its two planes meet.
+/// Its derivatives depend on where along `l` the crossing lies, and a noisy crossing lies
+/// off its true place along `l` by noise: the derivatives carry a term `(t̂ · δ) t̂·∂n̂/∂p`
+/// (`δ` the crossing's error, `t̂` the line's direction, `n̂` its normal). Its square
+/// enters Gauss–Newton's information as if it were evidence, about one radian⁻² of the
+/// line's turn per crossing, in every direction where the crossings themselves say
+/// nothing: a plane whose crossings all lie on one line of a wall would read as known to
+/// about `1/√n` radians of turn. Its expectation, with the crossings' scatter along `l`
+/// taken equal to their measured scatter across it, is `C = Σ_k w_k b_k b_kᵀ`, `b_k` the
+/// line's turn rate. Mapped as the marginals are, `[Σ C Σ]_ff` per pose. Also returns
+/// each pose's number of crossings (of weight at least one half).
+fn scatter_information(
+    layout: &Layout,
+    state: &State,
+    spreads: &Spreads,
+    cov: &Mat<f64>,
+) -> (Vec<PoseMarginal>, Vec<usize>) {
+    let ev = layout.evidence;
+    let n = layout.n;
+    let rays = layout.rays(state.focal_scale);
+    let loss = layout.crossing_loss();
+    let mut c = Mat::<f64>::zeros(n, n);
+    let mut g = vec![0.0; n];
+    let mut counts = vec![0usize; ev.num_poses()];
+    for k in 0..ev.crossings.len() {
+        let Some(t) = layout.crossing(state, k, &rays) else {
+            continue;
+        };
+        let o = &ev.crossings[k];
+        let sigma = spreads.crossing_px[o.class as usize];
+        let w = loss.weight(t.e / sigma);
+        let (qa, qb) = (
+            ev.planes[o.a as usize].pose as usize,
+            ev.planes[o.b as usize].pose as usize,
+        );
+        if w >= 0.5 {
+            counts[qa] += 1;
+            if qb != qa {
+                counts[qb] += 1;
+            }
+        }
+        let mut idx = [0usize; 12];
+        let mut jac = [0.0; 12];
+        for i in 0..6 {
+            idx[i] = qa * POSE_DOF + i;
+            jac[i] = t.ta[i];
+            idx[6 + i] = qb * POSE_DOF + i;
+            jac[6 + i] = t.tb[i];
+        }
+        // In units of the residual's noise: b's scatter term is (t̂·δ) b with t̂·δ of
+        // the same spread σ as the residual, so its information is w b bᵀ.
+        accumulate(&mut c, &mut g, &idx, &jac, w, 0.0);
+    }
+    for j in 0..n {
+        for i in 0..j {
+            let v = c[(j, i)];
+            c[(i, j)] = v;
+        }
+    }
+    let t = &c * cov;
+    let focal = layout.focal_index();
+    let blocks = (0..ev.num_poses())
+        .map(|p| {
+            let idx: Vec<usize> = (0..7)
+                .filter_map(|i| if i < 6 { Some(p * POSE_DOF + i) } else { focal })
+                .collect();
+            let mut out = PoseMarginal::zeros();
+            for (a, &ia) in idx.iter().enumerate() {
+                for (b, &ib) in idx.iter().enumerate() {
+                    // [Σ C Σ]_{ia ib} = Σ_r Σ_{r ia} (C Σ)_{r ib}.
+                    let (col_s, col_t) = (cov.col_as_slice(ia), t.col_as_slice(ib));
+                    out[(a, b)] = col_s.iter().zip(col_t).map(|(x, y)| x * y).sum();
+                }
+            }
+            out
+        })
+        .collect();
+    (blocks, counts)
 }
 
 /// Whether `class` crossings exist in `evidence` (their spread is measured only then).

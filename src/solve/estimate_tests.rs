@@ -224,7 +224,8 @@ fn the_motion_term_recovers_a_drifting_centre() {
         assert!(sigma < 0.02, "frame {pose}: the motion term leaves {sigma}");
         worst_ratio = worst_ratio.max(err / sigma);
         let loose = without.depth_sigma(pose, laser, &ray(u));
-        // Without it, only the crossings' scatter along their lines speaks of the turn.
+        // Without it, the crossings say nothing of the turn (their scatter along their
+        // own lines is not evidence).
         assert!(
             loose > 10.0 * sigma,
             "frame {pose}: {loose} without motion, {sigma} with"
@@ -366,7 +367,7 @@ fn a_plane_with_collinear_crossings_gets_a_large_uncertainty() {
         })
         .map(|c| est.depth_sigma(f, 0, &ray(c.u)))
         .fold(0.0, f64::max);
-    assert!(off_line > 0.05, "{off_line}");
+    assert!(off_line > 0.2, "{off_line}");
 }
 
 /// A single wall: every crossing on one 3D plane. Without the hand's motion, the planes
@@ -404,5 +405,5 @@ fn a_single_wall_leaves_the_planes_undetermined() {
     let on_wall = r / scan.planes[30][0].dot(&r);
     let x = scan.centres[30] + (on_wall - scan.centres[30]) * 0.6;
     let sigma = est.depth_sigma(30, 0, &ray([x.x / x.z, x.y / x.z]));
-    assert!(sigma > 0.05, "{sigma}");
+    assert!(sigma > 0.2, "{sigma}");
 }

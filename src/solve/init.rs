@@ -128,7 +128,7 @@ fn meeting_point<'a>(lines: impl Iterator<Item = &'a (V3, V3)>, anchor: Option<V
         .fold((f64::INFINITY, 0.0f64), |(lo, hi), &l| {
             (lo.min(l), hi.max(l))
         });
-    if !(lo > 1e-6 * hi) {
+    if lo.is_nan() || lo <= 1e-6 * hi {
         return None;
     }
     a.cholesky().map(|c| c.solve(&b))

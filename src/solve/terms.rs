@@ -25,18 +25,23 @@
 use nalgebra::{Matrix3, Vector3};
 
 use super::evidence::Ray;
-use super::pose::{left_jacobian_inverse, log_rotation, CrossPose};
+use super::pose::{left_jacobian_inverse, log_rotation, CrossPose, PlaneLinearisation};
 
 type V3 = Vector3<f64>;
 
 /// A crossing's residual and its derivatives with respect to the local parameters of the
-/// poses of planes `a` and `b`, and to the focal scale.
+/// poses of planes `a` and `b`, and to the focal scale; and how fast the image line turns
+/// with those parameters (`ta`, `tb`: `t̂ · ∂n̂/∂p`, `n̂` the line's unit normal, `t̂`
+/// its direction), which is what makes the residual's derivatives depend on where along
+/// the line the noisy crossing fell (see [`super::estimate`]).
 #[derive(Clone, Copy, Debug)]
 pub struct CrossingTerm {
     pub e: f64,
     pub ja: [f64; 6],
     pub jb: [f64; 6],
     pub j_scale: f64,
+    pub ta: [f64; 6],
+    pub tb: [f64; 6],
 }
 
 /// Image lines whose direction part is below this share of their norm come from two
@@ -59,7 +64,7 @@ pub fn crossing(
     let b = pb.linearise(lb);
     let l = a.n * b.d - b.n * a.d;
     let m = l.x.hypot(l.y);
-    if !(m > MIN_LINE_DIRECTION * l.norm()) {
+    if m.is_nan() || m <= MIN_LINE_DIRECTION * l.norm() {
         return None;
     }
     let s = focal_px * lambda;
@@ -71,20 +76,36 @@ pub fn crossing(
         s * (r.y / m - q * l.y / (m * m * m)),
         s * r.z / m,
     );
-    let de_dda = -g.dot(&b.n);
-    let de_ddb = g.dot(&a.n);
-    // ∂e/∂θ = (∂n/∂θ)ᵀ ∂e/∂n + ∂e/∂d ∂d/∂θ.
-    let ta = a.dn_dtheta.transpose() * (g * b.d) + a.dd_dtheta * de_dda;
-    let ca = a.dd_dcentre * de_dda;
-    let tb = b.dn_dtheta.transpose() * (g * (-a.d)) + b.dd_dtheta * de_ddb;
-    let cb = b.dd_dcentre * de_ddb;
+    let (ja, jb) = chain(&a, &b, &g);
+    // The line's turn: φ = t̂ · l_xy / m with t̂ held, ∂φ/∂l = (t̂, 0) / m.
+    let turn = V3::new(-l.y / (m * m), l.x / (m * m), 0.0);
+    let (ta, tb) = chain(&a, &b, &turn);
     let j_scale = s / m * l.dot(&ray.dr_dscale) + e / lambda;
     Some(CrossingTerm {
         e,
-        ja: [ta.x, ta.y, ta.z, ca.x, ca.y, ca.z],
-        jb: [tb.x, tb.y, tb.z, cb.x, cb.y, cb.z],
+        ja,
+        jb,
         j_scale,
+        ta,
+        tb,
     })
+}
+
+/// The derivatives of a function of the line `l = d_b n_a − d_a n_b` with gradient `g`
+/// (`∂/∂l`) with respect to the local parameters of the poses of planes `a` and `b`:
+/// `∂/∂n_a = d_b g`, `∂/∂d_a = −g · n_b`, `∂/∂n_b = −d_a g`, `∂/∂d_b = g · n_a`, then
+/// `∂/∂θ = (∂n/∂θ)ᵀ ∂/∂n + ∂/∂d ∂d/∂θ` and `∂/∂C = ∂/∂d ∂d/∂C`.
+fn chain(a: &PlaneLinearisation, b: &PlaneLinearisation, g: &V3) -> ([f64; 6], [f64; 6]) {
+    let dda = -g.dot(&b.n);
+    let ddb = g.dot(&a.n);
+    let ta = a.dn_dtheta.transpose() * (g * b.d) + a.dd_dtheta * dda;
+    let ca = a.dd_dcentre * dda;
+    let tb = b.dn_dtheta.transpose() * (g * (-a.d)) + b.dd_dtheta * ddb;
+    let cb = b.dd_dcentre * ddb;
+    (
+        [ta.x, ta.y, ta.z, ca.x, ca.y, ca.z],
+        [tb.x, tb.y, tb.z, cb.x, cb.y, cb.z],
+    )
 }
 
 /// A motion residual (3 components) and its 3×3 derivatives with respect to the
@@ -224,6 +245,26 @@ mod tests {
                 (nb - t.jb[j]).abs() < 1e-4 * (1.0 + nb.abs()),
                 "b {j}: {nb} vs {}",
                 t.jb[j]
+            );
+        }
+        // The line's turn: the angle of its normal, by finite differences.
+        let angle = |pa: &CrossPose, pb: &CrossPose| {
+            let (a, b) = (pa.linearise(0), pb.linearise(1));
+            let l = a.n * b.d - b.n * a.d;
+            l.y.atan2(l.x)
+        };
+        for j in 0..6 {
+            let na = (angle(&perturbed(&pa, j, h), &pb) - angle(&pa, &pb)) / h;
+            let nb = (angle(&pa, &perturbed(&pb, j, h)) - angle(&pa, &pb)) / h;
+            assert!(
+                (na - t.ta[j]).abs() < 1e-4 * (1.0 + na.abs()),
+                "turn a {j}: {na} vs {}",
+                t.ta[j]
+            );
+            assert!(
+                (nb - t.tb[j]).abs() < 1e-4 * (1.0 + nb.abs()),
+                "turn b {j}: {nb} vs {}",
+                t.tb[j]
             );
         }
         let moved = Ray {
