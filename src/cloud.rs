@@ -45,6 +45,11 @@ pub struct TriangulateParams {
     /// the edge of a surface, the other laser's stripe) the detector's window mixes
     /// the stripe with what lies beyond, and its last point is the worst localised.
     pub curve_end_points: u32,
+    /// A self-calibrated point is kept only where one standard deviation of its relative
+    /// depth, from the estimator's covariance of its plane, is at most this (0.003 =
+    /// 0.3 %): a plane that its crossings fix along one line of a wall gives its points
+    /// on that wall, not its stretch onto the next surface.
+    pub max_depth_sigma: f64,
 }
 
 impl Default for TriangulateParams {
@@ -55,6 +60,7 @@ impl Default for TriangulateParams {
             min_disagreeing_crossings: 2,
             blame_strength_ratio: 1.5,
             curve_end_points: 1,
+            max_depth_sigma: 0.003,
         }
     }
 }

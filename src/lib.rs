@@ -21,7 +21,9 @@
 //! - [`intersect`]: spatial index over curve segments, crossing points.
 //! - [`solve`]: coplanarity system, gauge, orthogonality, robust re-solve, extension.
 //! - [`cloud`]: triangulation, rejection, colour, scale.
-//! - [`reconstruct`]: the offline pipeline wiring the stages; [`config`]: its settings.
+//! - [`pipeline`]: the stages after extraction that `reconstruct` and `serve` share:
+//!   crossings, the self-calibration, triangulation where the planes determine depth.
+//! - [`reconstruct`]: offline recordings through the pipeline; [`config`]: its settings.
 //! - [`ply`]: PLY point cloud reading and writing.
 //! - [`serve`]: the live daemon: threads, incremental solver, checkpoints, sockets,
 //!   the cloud stream protocol and status lines.
@@ -37,6 +39,7 @@ pub mod config;
 pub mod extract;
 pub mod intersect;
 pub mod pfm;
+pub mod pipeline;
 pub mod ply;
 pub mod reconstruct;
 pub mod ring;

@@ -33,8 +33,9 @@ use crate::cloud::{self, CurvePoints, ScaleMode};
 use crate::config::Config;
 use crate::extract::Curve;
 use crate::intersect::{Crossing, SegmentIndex};
+use crate::pipeline::{self as reconstruct, PlaneCurves, PlaneSource, Reconstruction};
 use crate::ply::Cloud;
-use crate::reconstruct::{self, PlaneCurves, PlaneSource, ReconstructError, Reconstruction};
+use crate::reconstruct::ReconstructError;
 use crate::solve::extend::{fit_plane, FitContext};
 use crate::solve::{self, Problem, Solution, SolveError, WarmStart};
 

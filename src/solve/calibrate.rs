@@ -14,13 +14,14 @@
 //!   that are determined well enough;
 //! - `Disputed`: most of its own crossings reject the estimate (their robust weight under
 //!   one half): the plane contradicts its evidence and is not used;
-//! - `NoEvidence`: no crossing of it could be evaluated.
+//! - `NoEvidence`: no crossing of it could be evaluated, or the start could not place
+//!   its pose.
 
 use nalgebra::Vector3;
 use serde::Serialize;
 
 use super::estimate::{self, Estimate, EstimateParams, Spreads, Start};
-use super::evidence::{CrossingClass, Evidence, Ray};
+use super::evidence::{CrossingClass, Evidence, Observation, PlaneSlot, Ray};
 use super::{init, Problem, SolveError, SolveParams};
 use crate::intersect::Crossing;
 
@@ -60,63 +61,70 @@ pub struct CalibrationSummary {
 /// The scan's planes and how well each is known.
 #[derive(Clone, Debug)]
 pub struct Calibration {
+    /// The estimate, over the poses the start could place (see [`calibrate`]).
     pub estimate: Estimate,
+    /// The evidence the estimate was made on: the caller's, less the poses the start
+    /// could not place and their crossings.
+    pub evidence: Evidence,
+    /// Per plane of the caller's evidence, its index in [`Self::evidence`].
+    pub plane_map: Vec<Option<u32>>,
+    /// Per plane of the caller's evidence.
     pub verdicts: Vec<PlaneVerdict>,
     pub summary: CalibrationSummary,
 }
 
 impl Calibration {
-    /// Plane `i` as `v` with `v · r = 1/Z` on the rays at the estimated focal scale; `None`
-    /// unless determined.
-    pub fn plane(&self, evidence: &Evidence, i: usize) -> Option<V3> {
+    /// Plane `i` (of the caller's evidence) as `v` with `v · r = 1/Z` on the rays at the
+    /// estimated focal scale; `None` unless determined.
+    pub fn plane(&self, i: usize) -> Option<V3> {
         if self.verdicts.get(i) != Some(&PlaneVerdict::Determined) {
             return None;
         }
-        let slot = evidence.planes[i];
+        let slot = self.evidence.planes[self.plane_map[i]? as usize];
         self.estimate.poses[slot.pose as usize].plane(usize::from(slot.laser))
     }
 
     /// The ray of the undistorted normalised point `u` (camera file coordinates) at the
     /// estimated focal scale.
-    pub fn ray(&self, evidence: &Evidence, u: [f64; 2]) -> Option<Ray> {
-        evidence.rays.ray(u, self.estimate.focal_scale)
+    pub fn ray(&self, u: [f64; 2]) -> Option<Ray> {
+        self.evidence.rays.ray(u, self.estimate.focal_scale)
     }
 
-    /// One standard deviation of the relative depth of a point along `ray` on plane `i`.
-    pub fn depth_sigma(&self, evidence: &Evidence, i: usize, ray: &Ray) -> f64 {
-        let slot = evidence.planes[i];
+    /// One standard deviation of the relative depth of a point along `ray` on plane `i`
+    /// (of the caller's evidence); infinite for a plane not estimated.
+    pub fn depth_sigma(&self, i: usize, ray: &Ray) -> f64 {
+        let Some(k) = self.plane_map.get(i).copied().flatten() else {
+            return f64::INFINITY;
+        };
+        let slot = self.evidence.planes[k as usize];
         self.estimate
             .depth_sigma(slot.pose as usize, usize::from(slot.laser), ray)
     }
 }
 
-/// The linear start's problem: the strong crossings, planes as curves, partners by pose.
-fn start_problem<'a>(
-    evidence: &Evidence,
-    crossings: &'a [Crossing],
-    partner: &'a [Option<u32>],
-) -> Problem<'a> {
-    Problem {
-        num_curves: evidence.planes.len(),
-        crossings,
-        partner,
-        focal_px: evidence.focal_px,
+/// A crossing of the evidence as the linear start takes it.
+fn as_crossing(c: &Observation) -> Crossing {
+    Crossing {
+        a: c.a.min(c.b),
+        b: c.a.max(c.b),
+        u: c.u,
+        sin_angle: c.sin_angle,
     }
 }
 
-/// Self-calibrates the scan of `evidence` (see the module docs).
-pub fn calibrate(evidence: &Evidence, params: &SolveParams) -> Result<Calibration, SolveError> {
-    evidence.validate().map_err(SolveError::InvalidProblem)?;
+/// The linear start: the strong crossings solved by [`super::solve`], then every plane
+/// it left unsolved fitted from all its crossings, faint ones too, with the solved
+/// planes (the far end of a sweep under water has only faint curves). Planes on the
+/// rays at the start's focal scale (`v · (x/λ, y/λ, 1)`, the rays without distortion).
+fn linear_start(
+    evidence: &Evidence,
+    params: &SolveParams,
+) -> Result<(super::Solution, Vec<Option<V3>>), SolveError> {
     let strong: Vec<Crossing> = evidence
         .crossings
         .iter()
         .filter(|c| c.class == CrossingClass::Strong)
-        .map(|c| Crossing {
-            a: c.a.min(c.b),
-            b: c.a.max(c.b),
-            u: c.u,
-            sin_angle: c.sin_angle,
-        })
+        .map(as_crossing)
         .collect();
     let by_pose = evidence.planes_of_poses();
     let partner: Vec<Option<u32>> = evidence
@@ -124,19 +132,111 @@ pub fn calibrate(evidence: &Evidence, params: &SolveParams) -> Result<Calibratio
         .iter()
         .map(|p| by_pose[p.pose as usize][usize::from(p.laser == 0)])
         .collect();
-    let start = super::solve(&start_problem(evidence, &strong, &partner), params)?;
-    // The start's planes are in its focal-corrected coordinates (x/λ, y/λ, 1).
-    let planes: Vec<Option<V3>> = start.planes.clone();
-    let (poses, _had) = init::poses_from_planes(evidence, &planes)
+    let problem = Problem {
+        num_curves: evidence.planes.len(),
+        crossings: &strong,
+        partner: &partner,
+        focal_px: evidence.focal_px,
+    };
+    let start = super::solve(&problem, params)?;
+    let mut given = start.given_planes();
+    if let Some(ctx) = start.fit_context {
+        let all: Vec<Crossing> = evidence.crossings.iter().map(as_crossing).collect();
+        let active: Vec<bool> = all
+            .iter()
+            .map(|c| c.sin_angle >= ctx.min_sin_angle)
+            .collect();
+        let fixed: Vec<bool> = given.iter().map(Option::is_some).collect();
+        super::extend_and_refine(
+            &Problem {
+                crossings: &all,
+                ..problem
+            },
+            &active,
+            &mut given,
+            &fixed,
+            &ctx,
+            0,
+        );
+    }
+    let lambda = start.focal_scale;
+    let planes = given
+        .iter()
+        .map(|p| p.map(|v| V3::new(v.x * lambda, v.y * lambda, v.z)))
+        .collect();
+    Ok((start, planes))
+}
+
+/// `evidence` without the poses not in `keep`: the new evidence and, per plane of the
+/// old, its index in the new.
+fn restricted(evidence: &Evidence, keep: &[bool]) -> (Evidence, Vec<Option<u32>>) {
+    let mut pose_map = vec![None; keep.len()];
+    let mut pose_frames = Vec::new();
+    for (p, &k) in keep.iter().enumerate() {
+        if k {
+            pose_map[p] = Some(pose_frames.len() as u32);
+            pose_frames.push(evidence.pose_frames[p]);
+        }
+    }
+    let mut plane_map = vec![None; evidence.planes.len()];
+    let mut planes = Vec::new();
+    for (i, slot) in evidence.planes.iter().enumerate() {
+        if let Some(pose) = pose_map[slot.pose as usize] {
+            plane_map[i] = Some(planes.len() as u32);
+            planes.push(PlaneSlot {
+                pose,
+                laser: slot.laser,
+            });
+        }
+    }
+    let crossings = evidence
+        .crossings
+        .iter()
+        .filter_map(|c| {
+            Some(Observation {
+                a: plane_map[c.a as usize]?,
+                b: plane_map[c.b as usize]?,
+                ..*c
+            })
+        })
+        .collect();
+    (
+        Evidence {
+            pose_frames,
+            planes,
+            crossings,
+            focal_px: evidence.focal_px,
+            rays: evidence.rays.clone(),
+        },
+        plane_map,
+    )
+}
+
+/// Self-calibrates the scan of `evidence` (see the module docs). Poses the linear start
+/// cannot place (no plane of theirs fitted from crossings) are left out: a guess would
+/// only be pulled by crossings it is too far from to read.
+pub fn calibrate(evidence: &Evidence, params: &SolveParams) -> Result<Calibration, SolveError> {
+    evidence.validate().map_err(SolveError::InvalidProblem)?;
+    let (start, planes) = linear_start(evidence, params)?;
+    let (_, placed) = init::poses_from_planes(evidence, &planes)
+        .ok_or(SolveError::Degenerate("no plane to start from"))?;
+    let (sub, plane_map) = restricted(evidence, &placed);
+    let mut sub_planes: Vec<Option<V3>> = vec![None; sub.planes.len()];
+    for (i, m) in plane_map.iter().enumerate() {
+        if let Some(k) = m {
+            sub_planes[*k as usize] = planes[i];
+        }
+    }
+    let (poses, _) = init::poses_from_planes(&sub, &sub_planes)
         .ok_or(SolveError::Degenerate("no plane to start from"))?;
     let sigma_px = (start.sigma_img * evidence.focal_px).max(1e-3);
-    let spreads = init::start_spreads(evidence, &poses, sigma_px);
+    let spreads = init::start_spreads(&sub, &poses, sigma_px);
     let eparams = EstimateParams {
         estimate_focal: params.estimate_focal,
         ..EstimateParams::default()
     };
     let mut est = estimate::estimate(
-        evidence,
+        &sub,
         &Start {
             poses,
             focal_scale: start.focal_scale,
@@ -144,8 +244,12 @@ pub fn calibrate(evidence: &Evidence, params: &SolveParams) -> Result<Calibratio
         },
         &eparams,
     )?;
-    normalise_scale(evidence, &mut est);
-    let verdicts = verdicts(evidence, &est);
+    normalise_scale(&sub, &mut est);
+    let sub_verdicts = verdicts(&sub, &est);
+    let verdicts: Vec<PlaneVerdict> = plane_map
+        .iter()
+        .map(|m| m.map_or(PlaneVerdict::NoEvidence, |k| sub_verdicts[k as usize]))
+        .collect();
     let count = |v: PlaneVerdict| verdicts.iter().filter(|x| **x == v).count();
     let focal_scale_std = params
         .estimate_focal
@@ -156,7 +260,7 @@ pub fn calibrate(evidence: &Evidence, params: &SolveParams) -> Result<Calibratio
         planes_determined: count(PlaneVerdict::Determined),
         planes_disputed: count(PlaneVerdict::Disputed),
         planes_without_evidence: count(PlaneVerdict::NoEvidence),
-        planes_in_start: start.planes.iter().filter(|p| p.is_some()).count(),
+        planes_in_start: planes.iter().filter(|p| p.is_some()).count(),
         planes_in_global_start: start.global.len(),
         crossings: evidence.crossings.len(),
         crossings_outlying: est.crossing_weights.iter().filter(|w| **w < 0.5).count(),
@@ -168,6 +272,8 @@ pub fn calibrate(evidence: &Evidence, params: &SolveParams) -> Result<Calibratio
     };
     Ok(Calibration {
         estimate: est,
+        evidence: sub,
+        plane_map,
         verdicts,
         summary,
     })

@@ -53,6 +53,8 @@ pub mod subset;
 pub mod synthetic;
 pub mod terms;
 
+pub use calibrate::{calibrate, Calibration, PlaneVerdict};
+
 use crate::intersect::Crossing;
 use crate::simulate::scene::mix64;
 use extend::{fit_plane, FitContext};

@@ -173,20 +173,44 @@ fn any_orthogonal(n: &V3) -> V3 {
     (pick - n * n.dot(&pick)).normalize()
 }
 
-/// `log(R)` of a rotation matrix, as the rotation vector.
+/// `log(R)` of a rotation matrix, as the rotation vector: the angle from `atan2` of the
+/// sine and cosine parts, so that rounding near the identity (a trace a hair over 3,
+/// where `acos` gives NaN) and near a half turn stay finite.
 pub fn log_rotation(r: &Matrix3<f64>) -> V3 {
-    Rotation3::from_matrix_unchecked(*r).scaled_axis()
+    let v = V3::new(
+        r[(2, 1)] - r[(1, 2)],
+        r[(0, 2)] - r[(2, 0)],
+        r[(1, 0)] - r[(0, 1)],
+    ) * 0.5;
+    let sin = v.norm();
+    let cos = 0.5 * (r.trace() - 1.0);
+    let theta = sin.atan2(cos);
+    if sin < 1e-9 {
+        if cos > 0.0 {
+            // θ ≈ sin θ: first order is exact to rounding.
+            return v;
+        }
+        // A half turn: the axis is the column of (R + I) / 2 of largest norm.
+        let s = (r + Matrix3::identity()) * 0.5;
+        let col = (0..3)
+            .map(|i| s.column(i).into_owned())
+            .max_by(|a, b| a.norm().total_cmp(&b.norm()))
+            .unwrap_or_else(V3::x);
+        return col.normalize() * theta;
+    }
+    v * (theta / sin)
 }
 
 /// Inverse of the left Jacobian of SO(3) at `omega`: `log(exp(ε) exp(ω)) ≈ ω +
-/// J_l⁻¹(ω) ε` for small `ε`.
+/// J_l⁻¹(ω) ε` for small `ε`. In the cotangent form, finite up to a half turn.
 pub fn left_jacobian_inverse(omega: &V3) -> Matrix3<f64> {
     let theta = omega.norm();
     let w = omega.cross_matrix();
     if theta < 1e-6 {
         return Matrix3::identity() - 0.5 * w + (1.0 / 12.0) * w * w;
     }
-    let coef = 1.0 / (theta * theta) - (1.0 + theta.cos()) / (2.0 * theta * theta.sin());
+    let half = 0.5 * theta;
+    let coef = (1.0 - half * half.cos() / half.sin()) / (theta * theta);
     Matrix3::identity() - 0.5 * w + coef * w * w
 }
 
@@ -276,6 +300,20 @@ mod tests {
         let (a, b) = (p.plane(1).expect("plane"), q.plane(1).expect("plane"));
         assert!((a - b).norm() < 1e-12 * a.norm());
         assert!(q.normal(0).angle(&p.normal(0)) < 0.02);
+    }
+
+    #[test]
+    fn the_log_is_finite_and_right_near_the_identity_and_a_half_turn() {
+        for angle in [0.0, 1e-12, 1e-7, 0.3, 2.0, std::f64::consts::PI - 1e-10] {
+            let axis = V3::new(0.3, -0.5, 0.8).normalize();
+            let r = Rotation3::new(axis * angle).into_inner();
+            // A rotation a hair off orthonormal, as products of many leave it.
+            let r = r * (1.0 + 1e-15);
+            let w = log_rotation(&r);
+            assert!(w.iter().all(|x| x.is_finite()), "{angle}: {w}");
+            let back = Rotation3::new(w).into_inner();
+            assert!((back - r).norm() < 1e-9, "{angle}: {w}");
+        }
     }
 
     #[test]

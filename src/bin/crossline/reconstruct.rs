@@ -197,26 +197,44 @@ pub fn write_outputs(
 pub fn print_summary(rec: &Reconstruction) {
     let r = &rec.report;
     println!(
-        "frames {} (with laser {}), curves {}, planes {}, crossings {} ({} between strong curves)",
-        r.frames, r.frames_with_laser, r.curves, r.planes, r.crossings, r.crossings_in_solve
+        "frames {} (with laser {}), curves {}, planes {}, crossings {} ({} strong, {} faint)",
+        r.frames,
+        r.frames_with_laser,
+        r.curves,
+        r.planes,
+        r.crossings,
+        r.crossings_strong,
+        r.crossings_faint
     );
+    if let Some(c) = &r.calibration {
+        println!(
+            "planes: {} determined, {} disputed by their own crossings, {} without a \
+             crossing; {} gave points ({} in the start, {} in its global subset); {} of \
+             {} crossings outlying; {} estimator steps",
+            c.planes_determined,
+            c.planes_disputed,
+            r.planes - c.planes_determined - c.planes_disputed,
+            r.planes_solved,
+            c.planes_in_start,
+            c.planes_in_global_start,
+            c.crossings_outlying,
+            c.crossings,
+            c.iterations
+        );
+        if let Some(s) = &c.spreads {
+            println!(
+                "spreads: crossings {:.3} px (faint {:.3} px), hand centre {:.2e} and turn \
+                 {:.3}° aim, {:.3}° roll per frame²",
+                s.crossing_px[0],
+                s.crossing_px[1],
+                s.centre,
+                s.aim_rad.to_degrees(),
+                s.roll_rad.to_degrees()
+            );
+        }
+    }
     println!(
-        "planes: {} in the global solve, {} solved ({} by the hand's motion, {} from faint \
-         crossings); rejected {} crossings, {} planes, {} too loosely fixed; re-solved \
-         without {} crossings of curves off the surface",
-        r.planes_in_global_solve,
-        r.planes_solved,
-        r.planes_fixed_by_motion,
-        r.planes_from_faint_crossings,
-        r.rejected_crossings,
-        r.rejected_planes,
-        r.planes_too_uncertain,
-        r.crossings_off_surface
-    );
-    println!(
-        "residual rms {:.3e}, orthogonality rms {:.3} deg, focal scale {:.4}{}",
-        r.residual_rms,
-        r.orthogonality_rms_deg,
+        "focal scale {:.4}{}",
         r.focal_scale,
         r.focal_scale_std
             .map(|s| format!(" ± {s:.4}"))
@@ -234,9 +252,16 @@ pub fn print_summary(rec: &Reconstruction) {
     );
     let t = &r.triangulation;
     println!(
-        "left out: {} curves and {} points that their crossings disagree with, {} grazing, \
-         {} behind the camera, {} at curve ends",
-        t.inconsistent_curves, t.inconsistent_points, t.grazing, t.behind_camera, t.curve_ends
+        "left out: {} points whose depth their plane does not fix to {:.2} % (one \
+         deviation), {} curves and {} points that their crossings disagree with, {} \
+         grazing, {} behind the camera, {} at curve ends",
+        r.points_undetermined,
+        100.0 * r.max_depth_sigma,
+        t.inconsistent_curves,
+        t.inconsistent_points,
+        t.grazing,
+        t.behind_camera,
+        t.curve_ends
     );
     let s = &r.seconds;
     println!(

@@ -1,0 +1,375 @@
+//! The stages after extraction, shared by `reconstruct` and `serve`: curves are grouped
+//! into planes, their crossings found and refined, the planes self-calibrated (or given),
+//! and every curve point triangulated where its plane determines it.
+//!
+//! Owns [`Scan`], the state of a scan between extraction and the cloud, and
+//! [`reconstruct_curves`], the one driver both callers use. Knows nothing of where frames
+//! come from (files, dumps, cameras); the background policy and extraction live in
+//! [`crate::extract`], the estimator in [`crate::solve`], triangulation in
+//! [`crate::cloud`].
+//!
+//! # Stages
+//! 1. [`Scan::add_frame`]: a frame's curves become one plane per laser
+//!    ([`planes::PlaneCurves`]); their crossings with every earlier curve are found in the
+//!    segment index (curves of one plane do not constrain it).
+//! 2. [`Scan::refine_crossings`]: crossings found on the simplified polylines move to the
+//!    curves' dense points.
+//! 3. [`Scan::evidence`]: the crossings as the estimator sees them: crossings of two
+//!    strong ridges and those of a faint one, each kind weighed by its own measured spread.
+//! 4. [`crate::solve::calibrate`]: every pose of the projector and how well it is known.
+//! 5. [`triangulate::cloud`]: every point whose depth its plane determines to
+//!    `[triangulate] max_depth_sigma`, and that its crossings do not dispute.
+
+pub mod planes;
+pub mod report;
+pub mod triangulate;
+
+use std::time::Instant;
+
+use image::RgbImage;
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+use crate::camera::Camera;
+use crate::cloud::{self, ScaleMode};
+use crate::config::Config;
+use crate::extract::Curve;
+use crate::intersect::{Crossing, SegmentIndex};
+use crate::solve::evidence::{CrossingClass, Evidence, Observation, PlaneSlot, RayModel};
+use crate::solve::{self, Calibration};
+
+pub(crate) use planes::PlaneCurves;
+pub use report::{ReconstructReport, Reconstruction, StageTimes, REPORT_VERSION};
+
+/// Where the planes come from.
+#[derive(Clone, Copy, Debug)]
+pub enum PlaneSource<'a> {
+    /// Self-calibration from the crossings (the product).
+    SelfCalibrated,
+    /// Known planes per frame and laser (e.g. a simulation's truth): the same pipeline
+    /// with a perfectly calibrated projector, the yardstick of the self-calibration.
+    Known(&'a [[Option<Vector3<f64>>; 2]]),
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error("solving the planes")]
+    Solve(#[from] solve::SolveError),
+    #[error("fixing the scale")]
+    Scale(#[from] cloud::ScaleError),
+}
+
+/// Whether no point of `curve` reaches `min_strength` (curves read without strengths
+/// count as strong).
+pub(crate) fn is_faint(curve: &Curve, min_strength: f32) -> bool {
+    !curve.strength.is_empty() && !curve.strength.iter().any(|&s| s >= min_strength)
+}
+
+/// A scan between extraction and the cloud.
+pub struct Scan {
+    frames: usize,
+    planes: Vec<PlaneCurves>,
+    /// Per curve (global id, in plane order): its plane and its index in that plane.
+    curve_plane: Vec<u32>,
+    curve_local: Vec<u32>,
+    index: SegmentIndex,
+    /// Crossings of planes (`a`, `b` are plane ids) and the curves they are of.
+    crossings: Vec<Crossing>,
+    curve_ids: Vec<[u32; 2]>,
+    /// Crossings before this one are refined on the dense points.
+    refined: usize,
+    fresh: Vec<Crossing>,
+}
+
+impl Scan {
+    pub fn new(camera: &Camera, config: &Config) -> Self {
+        Self {
+            frames: 0,
+            planes: Vec::new(),
+            curve_plane: Vec::new(),
+            curve_local: Vec::new(),
+            index: SegmentIndex::for_image(
+                camera.width,
+                camera.height,
+                camera.fx.max(camera.fy),
+                config.solve.min_sin_angle,
+            ),
+            crossings: Vec::new(),
+            curve_ids: Vec::new(),
+            refined: 0,
+            fresh: Vec::new(),
+        }
+    }
+
+    pub fn frames(&self) -> usize {
+        self.frames
+    }
+
+    pub(crate) fn planes(&self) -> &[PlaneCurves] {
+        &self.planes
+    }
+
+    pub fn num_curves(&self) -> usize {
+        self.curve_plane.len()
+    }
+
+    pub fn num_crossings(&self) -> usize {
+        self.crossings.len()
+    }
+
+    /// Adds the next frame's curves: its planes, and their crossings with every curve so
+    /// far (not yet refined).
+    pub fn add_frame(&mut self, curves: Vec<Curve>) {
+        let frame = self.frames as u32;
+        self.frames += 1;
+        for plane in PlaneCurves::of_frame(frame, curves) {
+            let id = self.planes.len() as u32;
+            for (local, curve) in plane.curves.iter().enumerate() {
+                let cid = self.curve_plane.len() as u32;
+                self.curve_plane.push(id);
+                self.curve_local.push(local as u32);
+                self.fresh.clear();
+                self.index
+                    .insert_into(cid, &curve.polyline, &mut self.fresh);
+                for c in &self.fresh {
+                    let (pa, pb) = (
+                        self.curve_plane[c.a as usize],
+                        self.curve_plane[c.b as usize],
+                    );
+                    if pa != pb {
+                        self.crossings.push(Crossing { a: pa, b: pb, ..*c });
+                        self.curve_ids.push([c.a, c.b]);
+                    }
+                }
+            }
+            self.planes.push(plane);
+        }
+    }
+
+    /// Refines the crossings found since the last call on the curves' dense points
+    /// (`[intersect] refine_radius_px`), in parallel.
+    pub fn refine_crossings(&mut self, camera: &Camera, config: &Config) {
+        let radius = config.intersect.refine_radius_px / camera.fx.max(camera.fy);
+        let planes = &self.planes;
+        if radius > 0.0 {
+            self.crossings[self.refined..].par_iter_mut().for_each(|c| {
+                let a = planes[c.a as usize].dense_near(c.u, radius);
+                let b = planes[c.b as usize].dense_near(c.u, radius);
+                if let Some(u) = crate::intersect::refine_crossing(a, b, c.u, radius) {
+                    c.u = u;
+                }
+            });
+        }
+        self.refined = self.crossings.len();
+    }
+
+    fn curve(&self, cid: u32) -> &Curve {
+        let (p, local) = (
+            self.curve_plane[cid as usize],
+            self.curve_local[cid as usize],
+        );
+        &self.planes[p as usize].curves[local as usize]
+    }
+
+    /// The crossings of curves, with each curve's point nearest the crossing and its
+    /// ridge strength there, as the triangulation's crossing check needs them.
+    fn curve_crossings(&self) -> Vec<cloud::CurveCrossing> {
+        let at = |cid: u32, u: [f64; 2]| {
+            let (p, local) = (
+                self.curve_plane[cid as usize],
+                self.curve_local[cid as usize],
+            );
+            self.planes[p as usize].nearest_point(local as usize, u)
+        };
+        self.crossings
+            .par_iter()
+            .zip(&self.curve_ids)
+            .map(|(c, &[a, b])| {
+                let at = [at(a, c.u), at(b, c.u)];
+                let strength = |cid: u32, i: u32| {
+                    self.curve(cid)
+                        .strength
+                        .get(i as usize)
+                        .copied()
+                        .unwrap_or(0.0)
+                };
+                cloud::CurveCrossing {
+                    a,
+                    b,
+                    u: c.u,
+                    at,
+                    strength: [strength(a, at[0]), strength(b, at[1])],
+                }
+            })
+            .collect()
+    }
+
+    /// Per curve, whether it is faint: no point reaches `solve.min_curve_strength`.
+    fn faint_curves(&self, config: &Config) -> Vec<bool> {
+        self.planes
+            .iter()
+            .flat_map(|p| &p.curves)
+            .map(|c| is_faint(c, config.solve.min_curve_strength))
+            .collect()
+    }
+
+    /// The estimator's evidence: a pose per frame with a crossing, its planes, and every
+    /// crossing at an angle above `solve.min_sin_angle`, of class strong where both
+    /// curves are strong (`min_curve_strength`) and both ridges at least
+    /// `min_crossing_strength` there, faint otherwise. Also returns, per plane, its index
+    /// in the evidence (`None` for planes without a crossing).
+    fn evidence(
+        &self,
+        camera: &Camera,
+        config: &Config,
+        curve_crossings: &[cloud::CurveCrossing],
+        faint: &[bool],
+    ) -> (Evidence, Vec<Option<u32>>) {
+        let mut used = vec![false; self.planes.len()];
+        for c in &self.crossings {
+            if c.sin_angle >= config.solve.min_sin_angle {
+                used[c.a as usize] = true;
+                used[c.b as usize] = true;
+            }
+        }
+        let mut pose_of_frame: Vec<Option<u32>> = vec![None; self.frames];
+        let mut pose_frames = Vec::new();
+        let mut slots = Vec::new();
+        let mut plane_index = vec![None; self.planes.len()];
+        for (i, p) in self.planes.iter().enumerate() {
+            if !used[i] {
+                continue;
+            }
+            let pose = *pose_of_frame[p.frame as usize].get_or_insert_with(|| {
+                pose_frames.push(p.frame);
+                (pose_frames.len() - 1) as u32
+            });
+            plane_index[i] = Some(slots.len() as u32);
+            slots.push(PlaneSlot {
+                pose,
+                laser: p.laser,
+            });
+        }
+        let min_local = config.solve.min_crossing_strength;
+        let crossings = self
+            .crossings
+            .iter()
+            .zip(curve_crossings)
+            .filter(|(c, _)| c.sin_angle >= config.solve.min_sin_angle)
+            .filter_map(|(c, cc)| {
+                let strong = !faint[cc.a as usize]
+                    && !faint[cc.b as usize]
+                    && cc.strength.iter().all(|s| *s >= min_local || *s == 0.0);
+                Some(Observation {
+                    a: plane_index[c.a as usize]?,
+                    b: plane_index[c.b as usize]?,
+                    u: c.u,
+                    sin_angle: c.sin_angle,
+                    class: if strong {
+                        CrossingClass::Strong
+                    } else {
+                        CrossingClass::Faint
+                    },
+                })
+            })
+            .collect();
+        let evidence = Evidence {
+            pose_frames,
+            planes: slots,
+            crossings,
+            focal_px: camera.fx.max(camera.fy),
+            rays: RayModel::new(camera.distortion),
+        };
+        (evidence, plane_index)
+    }
+}
+
+/// The planes of a scan as triangulation takes them.
+pub(crate) enum Planes<'a> {
+    /// Self-calibrated: `plane_index[i]` is plane `i`'s index in the evidence.
+    Calibrated {
+        calibration: Box<Calibration>,
+        plane_index: &'a [Option<u32>],
+    },
+    /// Given per plane, exactly (on the rays of the camera file).
+    Known(Vec<Option<Vector3<f64>>>),
+}
+
+/// The stages after extraction: from each frame's curves to the scaled cloud (see the
+/// module docs).
+pub fn reconstruct_curves(
+    per_frame: Vec<Vec<Curve>>,
+    camera: &Camera,
+    config: &Config,
+    source: PlaneSource<'_>,
+    scale: &ScaleMode,
+    colour_source: Option<&RgbImage>,
+) -> Result<Reconstruction, PipelineError> {
+    let mut times = StageTimes::default();
+    let frames_with_laser = per_frame.iter().filter(|c| !c.is_empty()).count();
+    let t = Instant::now();
+    let mut scan = Scan::new(camera, config);
+    for curves in per_frame {
+        scan.add_frame(curves);
+    }
+    scan.refine_crossings(camera, config);
+    let curve_crossings = scan.curve_crossings();
+    let faint = scan.faint_curves(config);
+    let (evidence, plane_index) = scan.evidence(camera, config, &curve_crossings, &faint);
+    times.intersect_s = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let planes = match source {
+        PlaneSource::SelfCalibrated => Planes::Calibrated {
+            calibration: Box::new(solve::calibrate(&evidence, &config.solve)?),
+            plane_index: &plane_index,
+        },
+        PlaneSource::Known(known) => Planes::Known(
+            scan.planes()
+                .iter()
+                .map(|p| {
+                    known
+                        .get(p.frame as usize)
+                        .and_then(|f| f[usize::from(p.laser & 1)])
+                })
+                .collect(),
+        ),
+    };
+    times.solve_s = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let mut out = triangulate::cloud(
+        &scan,
+        &planes,
+        &curve_crossings,
+        &faint,
+        colour_source,
+        config,
+    );
+    let factor = cloud::scale_for(scale, &out.cloud, &out.pixels)?;
+    cloud::apply_scale(&mut out.cloud, factor);
+    times.triangulate_s = t.elapsed().as_secs_f64();
+    let calibration = match &planes {
+        Planes::Calibrated { calibration, .. } => Some(&**calibration),
+        Planes::Known(_) => None,
+    };
+    if let Some(c) = calibration {
+        if let Some(w) = solve::focal_warning(c.summary.focal_scale, c.summary.focal_scale_std) {
+            tracing::warn!("{w}");
+        }
+    }
+    Ok(report::assemble(
+        &scan,
+        &evidence,
+        calibration,
+        out,
+        frames_with_laser,
+        scale,
+        factor,
+        camera,
+        times,
+    ))
+}
+
+#[cfg(test)]
+mod tests;
