@@ -41,10 +41,9 @@
 #   EXTRA      extra reconstruct arguments (word-split), for both reconstructions
 #   FOCAL_OFF  a factor (e.g. 0.8): the self-calibrated reconstruction gets the camera
 #              with fx, fy (and skew) multiplied by it and --estimate-focal; the true-plane
-#              one keeps the true camera. The distortion coefficients are rescaled with
-#              the focal length (k1 by f^2, k2 by f^4, p1, p2 by f, ...), so that the
-#              file's only error is the focal length and the factor the solve should find
-#              is exactly 1 / FOCAL_OFF
+#              one keeps the true camera. The distortion coefficients stay as they are
+#              (the lens's), so the factor the solve should find is 1 / FOCAL_OFF with the
+#              distortion applied at the corrected radius
 #   TIMEOUT    seconds after which a reconstruction counts as failed (default 0: none)
 #
 # How long (2 cores, measured on room and on random seeds 2 and 3): a configuration at
@@ -122,30 +121,22 @@ PY
 }
 
 # off_camera IN OUT FACTOR: the OpenCV YAML camera IN with its focal lengths (and skew)
-# multiplied by FACTOR and its distortion rescaled to match.
+# multiplied by FACTOR. The distortion coefficients stay: they belong to the lens, and
+# under water the focal length is what a flat port changes. The true rays are then the
+# distortion inverted at the corrected radius, which is what --estimate-focal models.
 off_camera() {
     python3 - "$@" <<'PY'
 import re, sys
 src, dst, f = sys.argv[1], sys.argv[2], float(sys.argv[3])
 text = open(src).read()
-
-def scale_data(text, key, factors):
-    # The `data: [ ... ]` list of the matrix KEY (possibly over several lines).
-    m = re.search(key + r":.*?data:\s*\[(.*?)\]", text, re.S)
-    if m is None:
-        sys.exit(f"{src}: no {key} data")
-    values = [float(v) for v in m.group(1).replace("\n", " ").split(",") if v.strip()]
-    values = [v * factors[i] if i < len(factors) else v for i, v in enumerate(values)]
-    return text[:m.start(1)] + " " + ", ".join(repr(v) for v in values) + " " + text[m.end(1):]
-
 # camera_matrix: fx, skew, cx, 0, fy, cy, 0, 0, 1.
-text = scale_data(text, "camera_matrix", [f, f, 1, 1, f])
-# Pixel offsets / f' are 1/f times the true normalised coordinates, so a term of
-# degree 2n in them keeps its value with its coefficient times f^(2n); OpenCV order
-# k1 k2 p1 p2 k3 k4 k5 k6.
-if "distortion_coefficients" in text:
-    text = scale_data(text, "distortion_coefficients",
-                      [f**2, f**4, f, f, f**6, f**2, f**4, f**6])
+factors = [f, f, 1, 1, f]
+m = re.search(r"camera_matrix:.*?data:\s*\[(.*?)\]", text, re.S)
+if m is None:
+    sys.exit(f"{src}: no camera_matrix data")
+values = [float(v) for v in m.group(1).replace("\n", " ").split(",") if v.strip()]
+values = [v * factors[i] if i < len(factors) else v for i, v in enumerate(values)]
+text = text[:m.start(1)] + " " + ", ".join(repr(v) for v in values) + " " + text[m.end(1):]
 open(dst, "w").write(text)
 PY
 }
