@@ -357,6 +357,17 @@ pub fn reconstruct_curves(
         if let Some(w) = solve::focal_warning(c.summary.focal_scale, c.summary.focal_scale_std) {
             tracing::warn!("{w}");
         }
+        for alt in c.summary.alternatives.iter().filter(|a| a.ambiguous) {
+            tracing::warn!(
+                "a second solution fits about as well (its cost is {:.1} higher, within \
+                 chance for the three unknowns of the planes' common shift) and its depths \
+                 differ from the cloud's by a median {:.2} %: the crosses do not fix the \
+                 shift; both are in the report. Sweep the cross over more of the scene, \
+                 roll it more, or check the cloud against a known distance",
+                alt.delta_chi2,
+                100.0 * alt.median_depth_difference
+            );
+        }
     }
     Ok(report::assemble(
         &scan,

@@ -21,7 +21,7 @@ use nalgebra::Vector3;
 use serde::Serialize;
 
 use super::estimate::{self, Estimate, EstimateParams, Spreads, Start};
-use super::evidence::{CrossingClass, Evidence, Observation, PlaneSlot, Ray};
+use super::evidence::{CrossingClass, Evidence, Observation, Ray};
 use super::{init, Problem, SolveError, SolveParams};
 use crate::intersect::Crossing;
 
@@ -56,15 +56,41 @@ pub struct CalibrationSummary {
     /// RMS departure from 90° of the crosses (0 by construction in the estimate; kept for
     /// the report's continuity).
     pub orthogonality_rms_deg: f64,
+    /// Other solutions the search over the shift `w` found and refined, best first: a
+    /// scan whose crosses fix `w` poorly has more than one.
+    pub alternatives: Vec<Alternative>,
 }
+
+/// A second solution of the self-calibration and how it compares with the one output.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Alternative {
+    /// Its cost minus the output's, both under the output's spreads (χ² units).
+    pub delta_chi2: f64,
+    /// Median relative difference of its depths from the output's at the crossings.
+    pub median_depth_difference: f64,
+    /// Whether it fits about as well: `delta_chi2` under the 99 % point of χ² with three
+    /// degrees of freedom (those of the shift).
+    pub ambiguous: bool,
+}
+
+/// The 99 % point of χ² with three degrees of freedom: two solutions whose costs differ
+/// by less are not told apart by the evidence.
+pub const AMBIGUOUS_CHI2: f64 = 11.34;
+
+/// Largest number of minima of the orthogonality cost refined jointly.
+const MAX_CANDIDATES: usize = 3;
+
+/// A minimum of the orthogonality cost is refined jointly when its cost is at most this
+/// many times the best one's: the start's planes are noisy, and the joint estimate,
+/// not the start, judges.
+const CANDIDATE_COST_RATIO: f64 = 4.0;
 
 /// The scan's planes and how well each is known.
 #[derive(Clone, Debug)]
 pub struct Calibration {
-    /// The estimate, over the poses the start could place (see [`calibrate`]).
+    /// The estimate (see [`calibrate`]).
     pub estimate: Estimate,
-    /// The evidence the estimate was made on: the caller's, less the poses the start
-    /// could not place and their crossings.
+    /// The evidence the estimate was made on.
     pub evidence: Evidence,
     /// Per plane of the caller's evidence, its index in [`Self::evidence`].
     pub plane_map: Vec<Option<u32>>,
@@ -167,84 +193,50 @@ fn linear_start(
     Ok((start, planes))
 }
 
-/// `evidence` without the poses not in `keep`: the new evidence and, per plane of the
-/// old, its index in the new.
-fn restricted(evidence: &Evidence, keep: &[bool]) -> (Evidence, Vec<Option<u32>>) {
-    let mut pose_map = vec![None; keep.len()];
-    let mut pose_frames = Vec::new();
-    for (p, &k) in keep.iter().enumerate() {
-        if k {
-            pose_map[p] = Some(pose_frames.len() as u32);
-            pose_frames.push(evidence.pose_frames[p]);
-        }
-    }
-    let mut plane_map = vec![None; evidence.planes.len()];
-    let mut planes = Vec::new();
-    for (i, slot) in evidence.planes.iter().enumerate() {
-        if let Some(pose) = pose_map[slot.pose as usize] {
-            plane_map[i] = Some(planes.len() as u32);
-            planes.push(PlaneSlot {
-                pose,
-                laser: slot.laser,
-            });
-        }
-    }
-    let crossings = evidence
-        .crossings
-        .iter()
-        .filter_map(|c| {
-            Some(Observation {
-                a: plane_map[c.a as usize]?,
-                b: plane_map[c.b as usize]?,
-                ..*c
-            })
-        })
-        .collect();
-    (
-        Evidence {
-            pose_frames,
-            planes,
-            crossings,
-            focal_px: evidence.focal_px,
-            rays: evidence.rays.clone(),
-        },
-        plane_map,
-    )
-}
-
-/// Self-calibrates the scan of `evidence` (see the module docs). Poses the linear start
-/// cannot place (no plane of theirs fitted from crossings) are left out: a guess would
-/// only be pulled by crossings it is too far from to read.
+/// Self-calibrates the scan of `evidence` (see the module docs).
 pub fn calibrate(evidence: &Evidence, params: &SolveParams) -> Result<Calibration, SolveError> {
     evidence.validate().map_err(SolveError::InvalidProblem)?;
     let (start, planes) = linear_start(evidence, params)?;
-    let (_, placed) = init::poses_from_planes(evidence, &planes)
-        .ok_or(SolveError::Degenerate("no plane to start from"))?;
-    let (sub, plane_map) = restricted(evidence, &placed);
-    let mut sub_planes: Vec<Option<V3>> = vec![None; sub.planes.len()];
-    for (i, m) in plane_map.iter().enumerate() {
-        if let Some(k) = m {
-            sub_planes[*k as usize] = planes[i];
-        }
-    }
-    let (poses, _) = init::poses_from_planes(&sub, &sub_planes)
-        .ok_or(SolveError::Degenerate("no plane to start from"))?;
+    // Every pose with a crossing is estimated: those the start placed from its planes,
+    // the others (crossings all on one line of a wall, say) from the placed frames
+    // around them; their crossings and the hand's motion then place them, or their
+    // crossings reject them.
+    let sub = evidence.clone();
+    let plane_map: Vec<Option<u32>> = (0..evidence.planes.len() as u32).map(Some).collect();
+    let sub_planes = planes.clone();
     let sigma_px = (start.sigma_img * evidence.focal_px).max(1e-3);
-    let spreads = init::start_spreads(&sub, &poses, sigma_px);
     let eparams = EstimateParams {
         estimate_focal: params.estimate_focal,
         ..EstimateParams::default()
     };
-    let mut est = estimate::estimate(
-        &sub,
-        &Start {
-            poses,
-            focal_scale: start.focal_scale,
-            spreads,
-        },
-        &eparams,
-    )?;
-    normalise_scale(&sub, &mut est);
+    // The global search over the shift: every minimum of the orthogonality cost of the
+    // start's crosses, refined jointly.
+    let mut estimates = Vec::new();
+    for w in shift_candidates(&sub, &sub_planes) {
+        let shifted: Vec<Option<V3>> = sub_planes.iter().map(|p| p.map(|v| v + w)).collect();
+        let Some((poses, _)) = init::poses_from_planes(&sub, &shifted) else {
+            continue;
+        };
+        let spreads = init::start_spreads(&sub, &poses, sigma_px);
+        match estimate::estimate(
+            &sub,
+            &Start {
+                poses,
+                focal_scale: start.focal_scale,
+                spreads,
+            },
+            &eparams,
+        ) {
+            Ok(mut est) => {
+                normalise_scale(&sub, &mut est);
+                estimates.push(est);
+            }
+            Err(e) if estimates.is_empty() => return Err(e),
+            Err(e) => tracing::debug!("an alternative shift did not refine: {e}"),
+        }
+    }
+    let (est, alternatives) = best_of(&sub, estimates, &eparams)
+        .ok_or(SolveError::Degenerate("no start for the joint estimate"))?;
     let sub_verdicts = verdicts(&sub, &est);
     let verdicts: Vec<PlaneVerdict> = plane_map
         .iter()
@@ -269,6 +261,7 @@ pub fn calibrate(evidence: &Evidence, params: &SolveParams) -> Result<Calibratio
         focal_scale: est.focal_scale,
         focal_scale_std,
         orthogonality_rms_deg: 0.0,
+        alternatives,
     };
     Ok(Calibration {
         estimate: est,
@@ -277,6 +270,91 @@ pub fn calibrate(evidence: &Evidence, params: &SolveParams) -> Result<Calibratio
         verdicts,
         summary,
     })
+}
+
+/// The shifts `w` to refine: every minimum of the orthogonality cost of the crosses whose
+/// two planes the start gave, within [`CANDIDATE_COST_RATIO`] of the best, at most
+/// [`MAX_CANDIDATES`], the one nearest no shift first (the start's own). Always at least
+/// no shift.
+fn shift_candidates(evidence: &Evidence, planes: &[Option<V3>]) -> Vec<V3> {
+    let mut v0 = Vec::new();
+    let mut crosses = Vec::new();
+    for slots in evidence.planes_of_poses() {
+        if let [Some(a), Some(b)] = slots {
+            if let (Some(va), Some(vb)) = (planes[a as usize], planes[b as usize]) {
+                crosses.push((v0.len(), v0.len() + 1));
+                v0.push(va);
+                v0.push(vb);
+            }
+        }
+    }
+    let minima = super::ortho::shift_minima(&v0, &crosses);
+    let Some(best) = minima.first().map(|m| m.cost) else {
+        return vec![V3::zeros()];
+    };
+    let mut out: Vec<V3> = minima
+        .iter()
+        .filter(|m| m.cost <= CANDIDATE_COST_RATIO * best.max(f64::MIN_POSITIVE))
+        .take(MAX_CANDIDATES)
+        .map(|m| m.w)
+        .collect();
+    out.sort_by(|a, b| a.norm().total_cmp(&b.norm()));
+    if out.first().is_none_or(|w| w.norm() > 0.0) {
+        // The start's own shift, whatever the search says of it.
+        out.insert(0, V3::zeros());
+        out.truncate(MAX_CANDIDATES);
+    }
+    out
+}
+
+/// The estimate of least cost among `estimates` (under the spreads of the first, then
+/// of the winner), and how each other one compares with it.
+pub(crate) fn best_of(
+    evidence: &Evidence,
+    mut estimates: Vec<Estimate>,
+    params: &EstimateParams,
+) -> Option<(Estimate, Vec<Alternative>)> {
+    let first_spreads = estimates.first()?.spreads;
+    let costs: Vec<f64> = estimates
+        .iter()
+        .map(|e| estimate::cost_at(evidence, e, &first_spreads, params))
+        .collect();
+    let k = (0..estimates.len()).min_by(|&a, &b| costs[a].total_cmp(&costs[b]))?;
+    let best = estimates.swap_remove(k);
+    let base = estimate::cost_at(evidence, &best, &best.spreads, params);
+    let mut alternatives: Vec<Alternative> = estimates
+        .iter()
+        .map(|e| {
+            let delta_chi2 = estimate::cost_at(evidence, e, &best.spreads, params) - base;
+            Alternative {
+                delta_chi2,
+                median_depth_difference: depth_difference(evidence, &best, e),
+                ambiguous: delta_chi2 < AMBIGUOUS_CHI2,
+            }
+        })
+        .collect();
+    alternatives.sort_by(|a, b| a.delta_chi2.total_cmp(&b.delta_chi2));
+    Some((best, alternatives))
+}
+
+/// Median relative difference of the depths two estimates give at the crossings (each
+/// crossing on its first plane, both at their own scale normalisation).
+fn depth_difference(evidence: &Evidence, a: &Estimate, b: &Estimate) -> f64 {
+    let diffs: Vec<f64> = evidence
+        .crossings
+        .iter()
+        .filter_map(|c| {
+            let slot = evidence.planes[c.a as usize];
+            let depth = |e: &Estimate| {
+                let v = e.poses[slot.pose as usize].plane(usize::from(slot.laser))?;
+                let ray = evidence.rays.ray(c.u, e.focal_scale)?;
+                Some(v.dot(&ray.r))
+            };
+            let (da, db) = (depth(a)?, depth(b)?);
+            Some((da / db - 1.0).abs())
+        })
+        .collect();
+    super::median(diffs).unwrap_or(f64::INFINITY)
 }
 
 /// Rescales the centres (and their covariance, and the centre spread) so that the median

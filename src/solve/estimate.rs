@@ -189,6 +189,9 @@ const SPREAD_SETTLED: f64 = 0.05;
 /// of the minimum. What is left is judged from the last decrease and how fast the
 /// decreases shrink (a geometric tail, as iteratively reweighted steps give).
 const COST_SETTLED: f64 = 1.0;
+/// Least sine of the angle between a crossing's ray and its plane for the crossing to
+/// count in the gauge.
+const GAUGE_MIN_RAY_PLANE_SIN: f64 = 0.1;
 /// How many of its own deviations the information that the crossings' scatter along
 /// their lines gives is allowed to fluctuate by before the rest counts as evidence.
 const SCATTER_DEVIATIONS: f64 = 3.0;
@@ -426,7 +429,9 @@ impl Layout<'_> {
     /// gradient. Holding it fixes the global scale without touching anything a crossing
     /// determines or leaves free: the turn of a plane about the line of its crossings
     /// moves no depth at them, so it stays free, where holding the centres' scale would
-    /// pin it.
+    /// pin it. Rays within [`GAUGE_MIN_RAY_PLANE_SIN`] of their plane are left out: there
+    /// the log depth turns with the plane without bound, and a few such crossings would
+    /// make the gauge hold their depths instead of the scale.
     fn gauge(&self, state: &State, rays: &[Option<Ray>]) -> (f64, Vec<f64>) {
         let ev = self.evidence;
         let mut grad = vec![0.0; self.n];
@@ -441,6 +446,9 @@ impl Layout<'_> {
                     continue;
                 };
                 let rho = v.dot(&ray.r);
+                if rho.abs() < GAUGE_MIN_RAY_PLANE_SIN * v.norm() * ray.r.norm() {
+                    continue;
+                }
                 let Some((g, gl)) = log_depth_gradient(pose, usize::from(slot.laser), ray) else {
                     continue;
                 };
@@ -879,6 +887,22 @@ fn scatter_information(
         })
         .collect();
     (blocks, counts)
+}
+
+/// The robust cost of an estimate's poses and focal scale under other `spreads`, so
+/// that two estimates of one scan can be compared on one scale.
+pub fn cost_at(
+    evidence: &Evidence,
+    estimate: &Estimate,
+    spreads: &Spreads,
+    params: &EstimateParams,
+) -> f64 {
+    let layout = Layout::new(evidence, params);
+    let state = State {
+        poses: estimate.poses.clone(),
+        focal_scale: estimate.focal_scale,
+    };
+    layout.cost(&state, spreads)
 }
 
 /// Whether `class` crossings exist in `evidence` (their spread is measured only then).

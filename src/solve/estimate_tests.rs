@@ -407,3 +407,54 @@ fn a_single_wall_leaves_the_planes_undetermined() {
     let sigma = est.depth_sigma(30, 0, &ray([x.x / x.z, x.y / x.z]));
     assert!(sigma > 0.2, "{sigma}");
 }
+
+/// Three crosses: the orthogonality of each fixes the shift `w` to a sphere, and three
+/// spheres meet in two points. Both are exact solutions of the whole problem, so the
+/// search must find both, refine both, and call them ambiguous.
+#[test]
+fn two_w_solutions_are_detected() {
+    let scan = path_scan(&PathSpec {
+        frames: 3,
+        sweep_period: 5.0,
+        roll_period: 4.0,
+        ..PathSpec::default()
+    });
+    let ev = evidence_of(&scan, 0.0, 6, |_, _| true);
+    let truth = scan.flat_planes();
+    // The planes up to the projective family: v0 = v − w_true.
+    let w_true = V3::new(0.3, -0.2, 0.5);
+    let v0: Vec<V3> = truth.iter().map(|v| v - w_true).collect();
+    let crosses: Vec<(usize, usize)> = (0..3).map(|f| (2 * f, 2 * f + 1)).collect();
+    let minima = super::ortho::shift_minima(&v0, &crosses);
+    let exact: Vec<_> = minima.iter().filter(|m| m.cost < 1e-20).collect();
+    assert_eq!(exact.len(), 2, "{minima:?}");
+    assert!(
+        exact.iter().any(|m| (m.w - w_true).norm() < 1e-8),
+        "{exact:?}"
+    );
+    let params = EstimateParams {
+        motion: false,
+        ..EstimateParams::default()
+    };
+    let estimates: Vec<_> = exact
+        .iter()
+        .map(|m| {
+            let planes: Vec<Option<V3>> = v0.iter().map(|v| Some(v + m.w)).collect();
+            let (poses, _) = super::init::poses_from_planes(&ev, &planes).expect("poses");
+            let start = Start {
+                poses,
+                focal_scale: 1.0,
+                spreads: spreads(0.1),
+            };
+            estimate(&ev, &start, &params).expect("estimate")
+        })
+        .collect();
+    let (best, alternatives) =
+        super::calibrate::best_of(&ev, estimates, &params).expect("a best one");
+    assert_eq!(alternatives.len(), 1);
+    let alt = alternatives[0];
+    assert!(alt.ambiguous, "{alt:?}");
+    assert!(alt.median_depth_difference > 0.01, "{alt:?}");
+    // One of the two is the truth, to rounding; which one, the evidence cannot say.
+    let _ = best;
+}

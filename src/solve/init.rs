@@ -84,20 +84,63 @@ pub fn poses_from_planes(
         })
         .collect();
     let had: Vec<bool> = poses.iter().map(Option::is_some).collect();
-    // Frames with no plane: the nearest solved frame's pose.
-    for f in 0..poses.len() {
-        if poses[f].is_none() {
-            let g = (0..poses.len())
-                .filter(|&g| had[g])
-                .min_by_key(|&g| frames[g].abs_diff(frames[f]))?;
-            poses[f] = poses[g];
+    // Signed to turn smoothly along the placed frames first, so that interpolation
+    // between them is between like rotations.
+    let placed: Vec<usize> = (0..poses.len()).filter(|&f| had[f]).collect();
+    for w in placed.windows(2) {
+        if let (Some(prev), Some(next)) = (poses[w[0]], poses[w[1]]) {
+            poses[w[1]] = Some(next.aligned_to(&prev));
         }
     }
-    let mut out: Vec<CrossPose> = poses.into_iter().flatten().collect();
+    // Frames with no plane: between the placed frames around them, by frame index (or
+    // carried on from the two nearest on one side): a pose that coincides with a
+    // neighbour's would make their crossings meet in no line at all.
+    let at = |i: usize| poses[placed[i]].map(|p| (frames[placed[i]] as f64, p));
+    let mut filled = poses.clone();
+    for f in 0..poses.len() {
+        if had[f] {
+            continue;
+        }
+        let after = placed.partition_point(|&g| g < f);
+        let (i, j) = match (
+            after.checked_sub(1),
+            (after < placed.len()).then_some(after),
+        ) {
+            (Some(b), Some(a)) => (b, a),
+            (Some(b), None) if b >= 1 => (b - 1, b),
+            (None, Some(a)) if a + 1 < placed.len() => (a, a + 1),
+            (Some(b), None) | (None, Some(b)) => (b, b),
+            (None, None) => return None,
+        };
+        let ((ta, pa), (tb, pb)) = (at(i)?, at(j)?);
+        let t = if tb > ta {
+            (frames[f] as f64 - ta) / (tb - ta)
+        } else {
+            0.0
+        };
+        filled[f] = Some(interpolate(&pa, &pb, t));
+    }
+    let mut out: Vec<CrossPose> = filled.into_iter().flatten().collect();
     for f in 1..out.len() {
         out[f] = out[f].aligned_to(&out[f - 1]);
     }
     Some((out, had))
+}
+
+/// The pose a fraction `t` of the way from `a` to `b` (beyond them for `t` outside
+/// `[0, 1]`): the rotation along the geodesic, the centre along the line.
+fn interpolate(a: &CrossPose, b: &CrossPose, t: f64) -> CrossPose {
+    let step = log_rotation(&(b.rotation * a.rotation.transpose())) * t;
+    let mut pose = CrossPose {
+        rotation: nalgebra::Rotation3::new(step).into_inner() * a.rotation,
+        centre: a.centre + (b.centre - a.centre) * t,
+    };
+    // The same pose when a and b coincide: nudge it by a hundredth of a degree, so that
+    // its planes are never exactly those of its neighbour.
+    if step.norm() < 1e-12 && t != 0.0 {
+        pose.retract(&[1.7e-4 * t, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    }
+    pose
 }
 
 /// The least-squares meeting point of lines `(point, unit direction)`, pulled weakly

@@ -125,6 +125,62 @@ fn levenberg_marquardt(v0: &[Vector3<f64>], crosses: &[(usize, usize)], start: &
     LmResult { theta, cost, jtj }
 }
 
+/// A local minimum of the orthogonality cost over the shift `w` (focal scale 1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ShiftMinimum {
+    pub w: Vector3<f64>,
+    /// Sum of the squared cosines of the crosses there.
+    pub cost: f64,
+}
+
+/// Every distinct local minimum of the orthogonality cost of `crosses` over a common
+/// shift `w` of the planes `v0`, best first: Levenberg–Marquardt from the linear starts,
+/// from no shift, and from a shell of starts along the linear system's axes at three
+/// scales of the planes' typical norm. Two minima are one when they lie within
+/// `1e-4` of that norm. The orthogonality cost is a quartic in `w`: a scan whose crosses
+/// all look alike has more than one minimum, and picking one without saying so settles
+/// the whole cloud in a projective warp of the truth.
+pub fn shift_minima(v0: &[Vector3<f64>], crosses: &[(usize, usize)]) -> Vec<ShiftMinimum> {
+    if crosses.len() < 3 {
+        return Vec::new();
+    }
+    let norms: Vec<f64> = v0
+        .iter()
+        .map(|v| v.norm())
+        .filter(|n| n.is_finite())
+        .collect();
+    let typical = super::median(norms).unwrap_or(1.0).max(f64::MIN_POSITIVE);
+    let mut starts = linear_starts(v0, crosses);
+    starts.push(Vector3::zeros());
+    for scale in [0.1, 0.5, 2.0] {
+        for axis in 0..3 {
+            for sign in [-1.0, 1.0] {
+                let mut w = Vector3::zeros();
+                w[axis] = sign * scale * typical;
+                starts.push(w);
+            }
+        }
+    }
+    let mut minima: Vec<ShiftMinimum> = Vec::new();
+    for w in starts {
+        let r = levenberg_marquardt(v0, crosses, &[w.x, w.y, w.z]);
+        let w = Vector3::new(r.theta[0], r.theta[1], r.theta[2]);
+        if !(r.cost.is_finite() && w.iter().all(|x| x.is_finite())) {
+            continue;
+        }
+        match minima
+            .iter_mut()
+            .find(|m| (m.w - w).norm() <= 1e-4 * typical)
+        {
+            Some(m) if r.cost < m.cost => *m = ShiftMinimum { w, cost: r.cost },
+            Some(_) => {}
+            None => minima.push(ShiftMinimum { w, cost: r.cost }),
+        }
+    }
+    minima.sort_by(|a, b| a.cost.total_cmp(&b.cost));
+    minima
+}
+
 /// Linear starts for `w` with `λ = 1` (see the module docs).
 fn linear_starts(v0: &[Vector3<f64>], crosses: &[(usize, usize)]) -> Vec<Vector3<f64>> {
     let m = crosses.len() as f64;
