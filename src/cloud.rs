@@ -352,6 +352,9 @@ pub struct CurvePoints<'a> {
     pub points: &'a [[f64; 2]],
     /// The same points in distorted pixels (for colour).
     pub points_px: &'a [[f32; 2]],
+    /// Per point, one standard deviation of its relative depth, kept with the point in
+    /// the cloud's `depth_sigmas` when given.
+    pub depth_sigmas: Option<&'a [f32]>,
 }
 
 /// Appends the points of one curve to `cloud`, coloured from `colour_source` (the
@@ -370,6 +373,7 @@ pub fn push_curve(
         laser,
         points,
         points_px,
+        depth_sigmas,
     } = curve;
     let min_sin = params.min_ray_plane_angle_deg.to_radians().sin();
     let mut stats = TriangulateStats::default();
@@ -395,6 +399,9 @@ pub fn push_curve(
                 }
                 if let Some(lasers) = cloud.lasers.as_mut() {
                     lasers.push(laser);
+                }
+                if let (Some(out), Some(sigmas)) = (cloud.depth_sigmas.as_mut(), depth_sigmas) {
+                    out.push(sigmas.get(i).copied().unwrap_or(f32::NAN));
                 }
                 stats.kept += 1;
             }
@@ -731,6 +738,7 @@ mod tests {
                 laser: 1,
                 points: &[[0.0, 0.0], [0.1, 0.1]],
                 points_px: &[[1.0, 1.0], [2.5, 2.5]],
+                depth_sigmas: None,
             },
             Some(&img),
             &TriangulateParams {
@@ -757,6 +765,7 @@ mod tests {
             laser: 0,
             points: &points[..n],
             points_px: &px[..n],
+            depth_sigmas: None,
         };
         let stats = push_curve(&mut cloud, Some(&mut pixels), &v, curve(5), None, &params);
         assert_eq!((stats.kept, stats.curve_ends), (3, 2));

@@ -10,6 +10,7 @@
 //! | frame | uint | frame index the point came from (present when known) |
 //! | laser | uchar | laser index 0 or 1 within its frame (present when known) |
 //! | distance | float | point-to-reference distance (written by `compare` only) |
+//! | depth_sigma | float | one standard deviation of the point's relative depth that its plane's self-calibration leaves (present for self-calibrated clouds; added in version 1) |
 //!
 //! A `comment crossline ply 1` line names the version; other comments carry provenance.
 //! CloudCompare, MeshLab and Open3D read this layout (extra properties are kept as
@@ -23,7 +24,7 @@
 //! | format | `ascii`, `binary_little_endian`, `binary_big_endian` (version 1.0) |
 //! | x, y, z | any scalar type (`float`, `double`, integers); required |
 //! | red, green, blue | `uchar` as is; `ushort` scaled by 255/65535; `float`/`double` in 0–1 scaled by 255; optional (all three or none) |
-//! | frame, laser, distance | any scalar type, converted; optional |
+//! | frame, laser, distance, depth_sigma | any scalar type, converted; optional |
 //! | other vertex properties | skipped, also list properties |
 //! | other elements | skipped before the vertex element (lists too); reading stops after it |
 //!
@@ -44,6 +45,9 @@ pub struct Cloud {
     pub frames: Option<Vec<u32>>,
     pub lasers: Option<Vec<u8>>,
     pub distances: Option<Vec<f32>>,
+    /// Per point, one standard deviation of its relative depth from its plane's
+    /// uncertainty (self-calibrated clouds).
+    pub depth_sigmas: Option<Vec<f32>>,
 }
 
 impl Cloud {
@@ -234,6 +238,7 @@ enum Field {
     Frame,
     Laser,
     Distance,
+    DepthSigma,
     Ignored,
 }
 
@@ -357,6 +362,7 @@ fn read_header<R: BufRead>(reader: &mut R, path: &Path) -> Result<Header, PlyErr
                                 "frame" => Field::Frame,
                                 "laser" => Field::Laser,
                                 "distance" => Field::Distance,
+                                "depth_sigma" => Field::DepthSigma,
                                 _ => Field::Ignored,
                             }
                         } else {
@@ -446,6 +452,7 @@ struct Record {
     frame: f64,
     laser: f64,
     distance: f64,
+    depth_sigma: f64,
 }
 
 impl Record {
@@ -465,6 +472,7 @@ impl Record {
             Field::Frame => self.frame = value,
             Field::Laser => self.laser = value,
             Field::Distance => self.distance = value,
+            Field::DepthSigma => self.depth_sigma = value,
             Field::Ignored => {}
         }
     }
@@ -492,6 +500,7 @@ fn read_vertices<R: BufRead>(
         frames: has(Field::Frame).then(|| Vec::with_capacity(reserve)),
         lasers: has(Field::Laser).then(|| Vec::with_capacity(reserve)),
         distances: has(Field::Distance).then(|| Vec::with_capacity(reserve)),
+        depth_sigmas: has(Field::DepthSigma).then(|| Vec::with_capacity(reserve)),
     };
     let mut rec = Record::default();
     let push = |rec: &Record, cloud: &mut Cloud| {
@@ -507,6 +516,9 @@ fn read_vertices<R: BufRead>(
         }
         if let Some(d) = cloud.distances.as_mut() {
             d.push(rec.distance as f32);
+        }
+        if let Some(d) = cloud.depth_sigmas.as_mut() {
+            d.push(rec.depth_sigma as f32);
         }
     };
     match format {
@@ -624,6 +636,7 @@ pub fn write_ply(path: &Path, cloud: &Cloud, comments: &[String]) -> Result<(), 
         ("frames", cloud.frames.as_ref().map(Vec::len)),
         ("lasers", cloud.lasers.as_ref().map(Vec::len)),
         ("distances", cloud.distances.as_ref().map(Vec::len)),
+        ("depth_sigmas", cloud.depth_sigmas.as_ref().map(Vec::len)),
     ] {
         if let Some(len) = len {
             if len != n {
@@ -656,6 +669,9 @@ pub fn write_ply(path: &Path, cloud: &Cloud, comments: &[String]) -> Result<(), 
     if cloud.distances.is_some() {
         header.push_str("property float distance\n");
     }
+    if cloud.depth_sigmas.is_some() {
+        header.push_str("property float depth_sigma\n");
+    }
     header.push_str("end_header\n");
     w.write_all(header.as_bytes()).map_err(io)?;
     let mut rec = Vec::with_capacity(32);
@@ -674,6 +690,9 @@ pub fn write_ply(path: &Path, cloud: &Cloud, comments: &[String]) -> Result<(), 
             rec.push(lasers[i]);
         }
         if let Some(d) = &cloud.distances {
+            rec.extend_from_slice(&d[i].to_le_bytes());
+        }
+        if let Some(d) = &cloud.depth_sigmas {
             rec.extend_from_slice(&d[i].to_le_bytes());
         }
         w.write_all(&rec).map_err(io)?;
@@ -705,6 +724,7 @@ mod tests {
             frames: Some(vec![0, 17, 4_000_000]),
             lasers: Some(vec![0, 1, 1]),
             distances: Some(vec![0.5, 0.0, 2.0e-4]),
+            depth_sigmas: Some(vec![1e-4, 0.003, 0.25]),
         };
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("c.ply");

@@ -72,6 +72,11 @@ impl PlaneRule<'_> {
         }
     }
 
+    /// Whether points get a depth deviation (self-calibrated planes do).
+    fn has_sigmas(&self) -> bool {
+        matches!(self.planes, Planes::Calibrated { .. })
+    }
+
     /// Whether the focal scale moves rays (otherwise a ray is its point).
     fn moves_rays(&self) -> bool {
         match self.planes {
@@ -149,6 +154,7 @@ pub(crate) fn cloud(
                 colors: Some(Vec::new()),
                 frames: Some(Vec::new()),
                 lasers: Some(Vec::new()),
+                depth_sigmas: rule.has_sigmas().then(Vec::new),
                 ..Default::default()
             };
             let mut pixels = Vec::new();
@@ -157,7 +163,7 @@ pub(crate) fn cloud(
             let Some(v) = plane_of[id] else {
                 return (part, pixels, stats, undetermined);
             };
-            let (mut points, mut points_px) = (Vec::new(), Vec::new());
+            let (mut points, mut points_px, mut sigmas) = (Vec::new(), Vec::new(), Vec::new());
             for (k, curve) in plane.curves.iter().enumerate() {
                 let i = first[id] + k;
                 if check.rejected[i] {
@@ -167,6 +173,7 @@ pub(crate) fn cloud(
                 }
                 points.clear();
                 points_px.clear();
+                sigmas.clear();
                 for (j, (p, px)) in curve.points.iter().zip(&curve.points_px).enumerate() {
                     if !check.keeps(i, j as u32) {
                         stats.inconsistent_points += 1;
@@ -176,12 +183,14 @@ pub(crate) fn cloud(
                         undetermined += 1;
                         continue;
                     };
-                    if rule.depth_sigma(id, &ray) > max_sigma {
+                    let sigma = rule.depth_sigma(id, &ray);
+                    if sigma > max_sigma {
                         undetermined += 1;
                         continue;
                     }
                     points.push([ray.r.x, ray.r.y]);
                     points_px.push(*px);
+                    sigmas.push(sigma as f32);
                 }
                 stats.add(&cloud::push_curve(
                     &mut part,
@@ -192,6 +201,7 @@ pub(crate) fn cloud(
                         laser: plane.laser,
                         points: &points,
                         points_px: &points_px,
+                        depth_sigmas: Some(&sigmas),
                     },
                     colour_source,
                     params,
@@ -205,6 +215,7 @@ pub(crate) fn cloud(
             colors: Some(Vec::new()),
             frames: Some(Vec::new()),
             lasers: Some(Vec::new()),
+            depth_sigmas: rule.has_sigmas().then(Vec::new),
             ..Default::default()
         },
         pixels: Vec::new(),
@@ -224,6 +235,9 @@ pub(crate) fn cloud(
             d.extend(s);
         }
         if let (Some(d), Some(s)) = (out.cloud.lasers.as_mut(), part.lasers) {
+            d.extend(s);
+        }
+        if let (Some(d), Some(s)) = (out.cloud.depth_sigmas.as_mut(), part.depth_sigmas) {
             d.extend(s);
         }
         out.pixels.extend(pixels);

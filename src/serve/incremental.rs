@@ -395,6 +395,7 @@ impl Incremental {
                         laser: plane.laser,
                         points: &curve.points,
                         points_px: &curve.points_px,
+                        depth_sigmas: None,
                     },
                     self.colour.as_deref(),
                     &self.config.triangulate,

@@ -312,6 +312,7 @@ impl Follower {
             frames: Some(self.points.iter().map(|p| p.frame).collect()),
             lasers: Some(self.points.iter().map(|p| p.laser).collect()),
             distances: None,
+            depth_sigmas: None,
         }
     }
 }
