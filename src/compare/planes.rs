@@ -71,9 +71,95 @@ pub fn plane_errors(errors: &[f32], ids: PlaneIds, wrong_relative: f64) -> Optio
     Some(out)
 }
 
+/// How well the cloud's own uncertainty (its `depth_sigma` property, the part of a
+/// point's depth deviation that comes from its plane) predicts the planes' errors: a
+/// plane's error is the median of its points' signed relative errors (over hundreds of
+/// points, each point's own noise averages out of it), and its *z* that error's size
+/// over the median deviation its points were given. An honest deviation gives *z* around
+/// 0.67 (the median of a Gaussian's absolute value) and rarely over 3.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct UncertaintyCheck {
+    pub planes: usize,
+    /// Median of the planes' *z*.
+    pub median_z: f64,
+    /// Planes whose *z* is over 3, and their points' share of the evaluated points.
+    pub planes_over_3: usize,
+    pub points_on_planes_over_3_fraction: f64,
+}
+
+/// The [`UncertaintyCheck`] of the signed relative `errors` (`NaN` where not evaluated)
+/// against `sigmas`, per plane of `ids`. `None` when the lengths differ or nothing is
+/// evaluated.
+pub fn uncertainty_check(
+    errors: &[f32],
+    sigmas: &[f32],
+    ids: PlaneIds,
+) -> Option<UncertaintyCheck> {
+    let n = errors.len();
+    if sigmas.len() != n || ids.frames.len() != n || ids.lasers.len() != n {
+        return None;
+    }
+    let mut keyed: Vec<(u64, f64, f64)> = (0..n)
+        .filter(|&i| errors[i].is_finite() && sigmas[i].is_finite() && sigmas[i] > 0.0)
+        .map(|i| {
+            let key = (u64::from(ids.frames[i]) << 8) | u64::from(ids.lasers[i]);
+            (key, errors[i] as f64, sigmas[i] as f64)
+        })
+        .collect();
+    if keyed.is_empty() {
+        return None;
+    }
+    keyed.sort_unstable_by_key(|k| k.0);
+    let evaluated = keyed.len();
+    let mut zs = Vec::new();
+    let (mut planes_over, mut points_over) = (0usize, 0usize);
+    let (mut e, mut s) = (Vec::new(), Vec::new());
+    for run in keyed.chunk_by(|a, b| a.0 == b.0) {
+        e.clear();
+        s.clear();
+        e.extend(run.iter().map(|k| k.1));
+        s.extend(run.iter().map(|k| k.2));
+        let z = median_mut(&mut e).abs() / median_mut(&mut s);
+        if z > 3.0 {
+            planes_over += 1;
+            points_over += run.len();
+        }
+        zs.push(z);
+    }
+    Some(UncertaintyCheck {
+        planes: zs.len(),
+        median_z: median_mut(&mut zs),
+        planes_over_3: planes_over,
+        points_on_planes_over_3_fraction: points_over as f64 / evaluated as f64,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_uncertainty_check_counts_planes_whose_errors_exceed_their_deviations() {
+        // Three planes of 4 points: deviations 1 %; errors 0.5 %, −1 %, and 5 % (wrong by
+        // five of its own deviations), each point ±2 % around its plane's error.
+        let errors: Vec<f32> = [0.005f32, -0.01, 0.05]
+            .iter()
+            .flat_map(|&e| [e - 0.02, e, e, e + 0.02])
+            .collect();
+        let sigmas = vec![0.01f32; 12];
+        let frames: Vec<u32> = (0..12).map(|i| i / 4).collect();
+        let lasers = vec![0u8; 12];
+        let ids = PlaneIds {
+            frames: &frames,
+            lasers: &lasers,
+        };
+        let c = uncertainty_check(&errors, &sigmas, ids).expect("check");
+        assert_eq!(c.planes, 3);
+        assert_eq!(c.planes_over_3, 1);
+        assert!((c.median_z - 1.0).abs() < 1e-6, "{c:?}");
+        assert!((c.points_on_planes_over_3_fraction - 1.0 / 3.0).abs() < 1e-9);
+        assert!(uncertainty_check(&errors[..5], &sigmas, ids).is_none());
+    }
     use crate::camera::{Camera, Distortion};
     use crate::compare::truth::{
         evaluate_against_truth, evaluate_cloud_against_truth, GroundTruth, TruthError, TruthParams,

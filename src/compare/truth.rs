@@ -90,6 +90,9 @@ pub struct TruthReport {
     pub points_on_wrong_planes: Option<usize>,
     /// `points_on_wrong_planes / evaluated`.
     pub points_on_wrong_planes_fraction: Option<f64>,
+    /// How well the cloud's `depth_sigma` predicts its errors, where it has them; set by
+    /// the caller ([`super::planes::uncertainty_check`]).
+    pub uncertainty: Option<super::planes::UncertaintyCheck>,
     pub coverage: Coverage,
     /// Coverage of the visible part of the lit area ([`GroundTruth::visible_mask`]).
     pub coverage_visible: Option<Coverage>,
@@ -97,6 +100,9 @@ pub struct TruthReport {
     /// invalid); for plots and coloured clouds, not serialised.
     #[serde(skip)]
     pub per_point: Vec<f32>,
+    /// The same errors with their sign, `(s·Z − Z_true) / Z_true`; not serialised.
+    #[serde(skip)]
+    pub per_point_signed: Vec<f32>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -204,10 +210,11 @@ pub fn evaluate_cloud_against_truth(
         .collect();
     let relative_error = ErrorStats::from_values(&mut errors, &[params.outlier_relative]);
     drop(errors);
-    let per_point: Vec<f32> = depths
+    let per_point_signed: Vec<f32> = depths
         .iter()
-        .map(|&(z, zt)| ((scale * z - zt).abs() / zt) as f32)
+        .map(|&(z, zt)| ((scale * z - zt) / zt) as f32)
         .collect();
+    let per_point: Vec<f32> = per_point_signed.iter().map(|e| e.abs()).collect();
     let by_plane =
         planes.and_then(|ids| plane_errors(&per_point, ids, params.wrong_plane_relative));
     let outlier_fraction = relative_error.over.first().map_or(0.0, |e| e.fraction);
@@ -228,9 +235,11 @@ pub fn evaluate_cloud_against_truth(
         points_on_wrong_planes_fraction: by_plane
             .as_ref()
             .map(|p| p.points_on_wrong_planes_fraction),
+        uncertainty: None,
         coverage: coverage(points, camera, lit, params.coverage_radius_px),
         coverage_visible: visible.map(|v| coverage(points, camera, v, params.coverage_radius_px)),
         per_point,
+        per_point_signed,
     })
 }
 

@@ -279,6 +279,7 @@ fn write_plots(
         frames: cloud.frames.clone(),
         lasers: cloud.lasers.clone(),
         distances: Some(values.to_vec()),
+        depth_sigmas: cloud.depth_sigmas.clone(),
     };
     let ply_path = with_suffix(prefix, "_distances.ply");
     let comments = [

@@ -31,7 +31,7 @@ pub(super) fn run(args: &Args, cloud: &Cloud, dir: &Path) -> anyhow::Result<Exit
         (Some(frames), Some(lasers)) => Some(PlaneIds { frames, lasers }),
         _ => None,
     };
-    let report =
+    let mut report =
         compare::evaluate_cloud_against_truth(&cloud.points, planes, truth.as_ref(), &params)
             .with_context(|| {
                 format!(
@@ -40,6 +40,10 @@ pub(super) fn run(args: &Args, cloud: &Cloud, dir: &Path) -> anyhow::Result<Exit
                     dir.display()
                 )
             })?;
+    if let (Some(ids), Some(sigmas)) = (planes, &cloud.depth_sigmas) {
+        report.uncertainty =
+            compare::planes::uncertainty_check(&report.per_point_signed, sigmas, ids);
+    }
     let full = TruthModeReport::new(
         &args.cloud.to_string_lossy(),
         &dir.to_string_lossy(),
@@ -68,6 +72,16 @@ pub(super) fn run(args: &Args, cloud: &Cloud, dir: &Path) -> anyhow::Result<Exit
         println!("relative depth error |s·Z − Z_true| / Z_true");
         print_stats(&r.relative_error, "");
         print_planes(r, cloud);
+        if let Some(u) = &r.uncertainty {
+            println!(
+                "deviation  planes' errors in their own depth_sigma: median {:.2} (0.67 if \
+                 honest); {} of {} planes over 3, carrying {:.3} % of the points",
+                u.median_z,
+                u.planes_over_3,
+                u.planes,
+                100.0 * u.points_on_planes_over_3_fraction
+            );
+        }
         println!(
             "coverage   {:.2} % of {} lit pixels have a point within {} px",
             100.0 * r.coverage.fraction,
