@@ -28,9 +28,9 @@
 //!
 //! # Spreads and uncertainty
 //! The spreads are measured, not set: after the minimisation, each kind of residual's
-//! variance is its weighted sum of squares over its share of the redundancy (Förstner's
-//! variance component estimation, `σ² ← Σ w e² / Σ (w − h)`, `h` the leverage of each
-//! residual from the covariance), and the minimisation is repeated until they settle.
+//! spread is the robust spread of its residuals standardised by their own redundancy
+//! (`|e| / √(1 − w h)`, `h` the leverage from the covariance; see [`measured_spreads`]),
+//! and the minimisation is repeated until they settle.
 //! The covariance of the poses is the inverse of the final information matrix; each
 //! pose keeps its marginal block (with the focal scale), from which the relative depth
 //! uncertainty of any point on its planes follows ([`Estimate::depth_sigma`]).
@@ -182,6 +182,9 @@ struct Layout<'a> {
 /// Floor of every spread, relative to a typical value of its kind: below it the data
 /// would be exact to rounding and the weights unbounded.
 const SPREAD_FLOOR: f64 = 1e-6;
+/// A residual whose redundancy `1 − w h` is below this is absorbed by the estimate and
+/// says nothing of its spread.
+const MIN_REDUNDANCY: f64 = 0.05;
 /// Relative change of the spreads below which the rounds stop.
 const SPREAD_SETTLED: f64 = 0.05;
 /// The minimisation ends when what is left to gain is under this, in units of the
@@ -601,16 +604,31 @@ fn quadratic_form(cov: &Mat<f64>, idx: &[usize], j: &[f64]) -> f64 {
     s
 }
 
-/// Förstner's variance components: per kind of residual, `(Σ w e², Σ (w − h))` with `w`
-/// the robust weight and `h = w jΣjᵀ/σ²` the leverage (weights and leverages of the
-/// components of a motion term summed).
-fn variance_components(
+/// The spreads the residuals at `state` show, per kind (crossings strong, faint; centre;
+/// aim; roll): the median of each residual's size standardised by its own redundancy,
+/// `|e| / √(1 − w h)` (`w` its robust weight, `h = jΣjᵀ/σ²` its leverage, so that a
+/// residual the estimate absorbs, such as the motion term of a centre nothing else
+/// places, does not read as small), times 1.4826, over the residuals not absorbed
+/// (`1 − w h` over 0.05). A median, not the weighted mean square of variance component
+/// estimation: under Cauchy's weights that shrinks the spread each round (the weights
+/// take a share of the Gaussian core too), and the shrunken spread raises the share of
+/// outliers, so the scan settled where it started. Also returns each kind's redundancy
+/// `Σ (w − w h)` and the number of residuals measured.
+fn measured_spreads(
     layout: &Layout,
     state: &State,
     spreads: &Spreads,
     cov: &Mat<f64>,
-) -> [(f64, f64); 5] {
-    let mut acc = [(0.0, 0.0); 5];
+) -> (Spreads, [f64; 5]) {
+    let mut standardised: [Vec<f64>; 5] = Default::default();
+    let mut redundancy = [0.0; 5];
+    let mut add = |kind: usize, e: f64, w: f64, h: f64| {
+        let r = 1.0 - w * h;
+        redundancy[kind] += w * r;
+        if r > MIN_REDUNDANCY {
+            standardised[kind].push(e.abs() / r.sqrt());
+        }
+    };
     let ev = layout.evidence;
     let rays = layout.rays(state.focal_scale);
     let fi = layout.focal_index();
@@ -632,10 +650,8 @@ fn variance_components(
             idx.push(f);
             j.push(t.j_scale);
         }
-        let lev = w * quadratic_form(cov, &idx, &j) / (sigma * sigma);
-        let slot = &mut acc[c.class as usize];
-        slot.0 += w * t.e * t.e;
-        slot.1 += w - lev;
+        let h = quadratic_form(cov, &idx, &j) / (sigma * sigma);
+        add(c.class as usize, t.e, w, h);
     }
     let mloss = layout.motion_loss();
     for t in &layout.triples {
@@ -655,41 +671,34 @@ fn variance_components(
                 }
             }
             let cidx = idx.map(|i| i + 3);
-            let lc = wc * quadratic_form(cov, &cidx, &jc) / spreads.centre.powi(2);
-            acc[2].0 += wc * cm.r[row] * cm.r[row];
-            acc[2].1 += wc - lc;
-            let (slot, w, sigma) = if row == 2 {
-                (3 + 1, wr, spreads.roll_rad)
+            let hc = quadratic_form(cov, &cidx, &jc) / spreads.centre.powi(2);
+            add(2, cm.r[row], wc, hc);
+            let (kind, w, sigma) = if row == 2 {
+                (4, wr, spreads.roll_rad)
             } else {
                 (3, wa, spreads.aim_rad)
             };
-            let lr = w * quadratic_form(cov, &idx, &jr) / (sigma * sigma);
-            acc[slot].0 += w * rm.r[row] * rm.r[row];
-            acc[slot].1 += w - lr;
+            let hr = quadratic_form(cov, &idx, &jr) / (sigma * sigma);
+            add(kind, rm.r[row], w, hr);
         }
     }
-    acc
-}
-
-/// Spreads from the variance components; a kind whose redundancy is too small to
-/// measure (under one residual's worth) keeps its spread.
-fn updated_spreads(old: &Spreads, comp: &[(f64, f64); 5]) -> Spreads {
-    let pick = |(ss, r): (f64, f64), old: f64| {
-        if r >= 1.0 && ss > 0.0 {
-            (ss / r).sqrt().max(SPREAD_FLOOR * old)
-        } else {
-            old
+    let mut pick = |kind: usize, old: f64| {
+        let values = std::mem::take(&mut standardised[kind]);
+        match super::median(values) {
+            Some(m) if m > 0.0 => (super::MAD_TO_SIGMA * m).max(SPREAD_FLOOR * old),
+            _ => old,
         }
     };
-    Spreads {
+    let next = Spreads {
         crossing_px: [
-            pick(comp[0], old.crossing_px[0]),
-            pick(comp[1], old.crossing_px[1]),
+            pick(0, spreads.crossing_px[0]),
+            pick(1, spreads.crossing_px[1]),
         ],
-        centre: pick(comp[2], old.centre),
-        aim_rad: pick(comp[3], old.aim_rad),
-        roll_rad: pick(comp[4], old.roll_rad),
-    }
+        centre: pick(2, spreads.centre),
+        aim_rad: pick(3, spreads.aim_rad),
+        roll_rad: pick(4, spreads.roll_rad),
+    };
+    (next, redundancy)
 }
 
 fn relative_change(a: &Spreads, b: &Spreads) -> f64 {
@@ -736,7 +745,7 @@ pub fn estimate(
     let mut iterations = 0;
     let mut cost;
     let mut cov;
-    let mut comp;
+    let mut redundancy;
     let mut round = 0;
     loop {
         let (s, c, steps) = minimise(&layout, state, &spreads);
@@ -746,9 +755,9 @@ pub fn estimate(
         cov = covariance(&layout, &state, &spreads).ok_or(SolveError::Degenerate(
             "the information matrix does not factor",
         ))?;
-        comp = variance_components(&layout, &state, &spreads, &cov);
+        let (next, r) = measured_spreads(&layout, &state, &spreads, &cov);
+        redundancy = r;
         round += 1;
-        let next = updated_spreads(&spreads, &comp);
         let change = relative_change(&spreads, &next);
         tracing::debug!(round, cost, steps, ?next, change, "estimator round");
         if round >= params.variance_rounds || change < SPREAD_SETTLED {
@@ -803,7 +812,7 @@ pub fn estimate(
         scatter_crossings,
         cost,
         iterations,
-        redundancy: comp.map(|(_, r)| r),
+        redundancy,
     })
 }
 
