@@ -61,7 +61,9 @@ pub struct CalibrationSummary {
     pub alternatives: Vec<Alternative>,
 }
 
-/// A second solution of the self-calibration and how it compares with the one output.
+/// A second solution of the self-calibration and how it compares with the one output
+/// (one whose depths lie within three of the output's own median deviations of the
+/// output's is the same solution, found twice, and not reported).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct Alternative {
     /// Its cost minus the output's, both under the output's spreads (χ² units).
@@ -195,8 +197,50 @@ fn linear_start(
 
 /// Self-calibrates the scan of `evidence` (see the module docs).
 pub fn calibrate(evidence: &Evidence, params: &SolveParams) -> Result<Calibration, SolveError> {
+    calibrate_from(evidence, params, None)
+}
+
+/// [`calibrate`], started from the given planes (per plane of `evidence`, `v · r = 1/Z`)
+/// instead of the linear start when `given` is set. For evaluation: started from a
+/// simulation's true planes, it tells whether the crossings hold the true solution, and
+/// determine it, whatever a start finds.
+pub fn calibrate_from(
+    evidence: &Evidence,
+    params: &SolveParams,
+    given: Option<&[Option<V3>]>,
+) -> Result<Calibration, SolveError> {
     evidence.validate().map_err(SolveError::InvalidProblem)?;
-    let (start, planes) = linear_start(evidence, params)?;
+    let (start, planes) = match given {
+        Some(planes) => {
+            if planes.len() != evidence.planes.len() {
+                return Err(SolveError::InvalidProblem(format!(
+                    "{} start planes for {} planes",
+                    planes.len(),
+                    evidence.planes.len()
+                )));
+            }
+            (super::Solution::empty(), planes.to_vec())
+        }
+        None => match linear_start(evidence, params) {
+            Ok(start) => start,
+            // Nothing for the null space to stand on (a table top, a standing hand in a
+            // plain room): start from the hand's centre instead.
+            Err(e @ (SolveError::TooFewPlanes { .. } | SolveError::TooFewCrosses { .. })) => {
+                match super::centre::fixed_centre_start(evidence) {
+                    Some((planes, rms)) => {
+                        tracing::info!(
+                            "the linear start found nothing to stand on ({e}); started from \
+                             one centre of the hand instead (crosses {:.2}° from orthogonal)",
+                            rms.asin().to_degrees()
+                        );
+                        (super::Solution::empty(), planes)
+                    }
+                    None => return Err(e),
+                }
+            }
+            Err(e) => return Err(e),
+        },
+    };
     // Every pose with a crossing is estimated: those the start placed from its planes,
     // the others (crossings all on one line of a wall, say) from the placed frames
     // around them; their crossings and the hand's motion then place them, or their
@@ -204,31 +248,59 @@ pub fn calibrate(evidence: &Evidence, params: &SolveParams) -> Result<Calibratio
     let sub = evidence.clone();
     let plane_map: Vec<Option<u32>> = (0..evidence.planes.len() as u32).map(Some).collect();
     let sub_planes = planes.clone();
-    let sigma_px = (start.sigma_img * evidence.focal_px).max(1e-3);
+    // The crossings' spread to start from: the linear start's, or a tenth of a pixel.
+    let sigma_px = if start.sigma_img > 0.0 {
+        (start.sigma_img * evidence.focal_px).max(1e-3)
+    } else {
+        0.1
+    };
     let eparams = EstimateParams {
         estimate_focal: params.estimate_focal,
         ..EstimateParams::default()
     };
     // The global search over the shift: every minimum of the orthogonality cost of the
-    // start's crosses, refined jointly.
-    let mut estimates = Vec::new();
+    // start's crosses, refined jointly; the start's own first, with the spreads measured,
+    // the others under its spreads, and fully only where they compete with it.
+    let mut estimates: Vec<Estimate> = Vec::new();
     for w in shift_candidates(&sub, &sub_planes) {
         let shifted: Vec<Option<V3>> = sub_planes.iter().map(|p| p.map(|v| v + w)).collect();
         let Some((poses, _)) = init::poses_from_planes(&sub, &shifted) else {
             continue;
         };
-        let spreads = init::start_spreads(&sub, &poses, sigma_px);
-        match estimate::estimate(
-            &sub,
-            &Start {
-                poses,
-                focal_scale: start.focal_scale,
-                spreads,
-            },
-            &eparams,
-        ) {
+        let (spreads, params_here) = match estimates.first() {
+            None => (init::start_spreads(&sub, &poses, sigma_px), eparams.clone()),
+            Some(first) => (
+                first.spreads,
+                EstimateParams {
+                    variance_rounds: 1,
+                    ..eparams.clone()
+                },
+            ),
+        };
+        let start = Start {
+            poses,
+            focal_scale: start.focal_scale,
+            spreads,
+        };
+        match estimate::estimate(&sub, &start, &params_here) {
             Ok(mut est) => {
                 normalise_scale(&sub, &mut est);
+                if let Some(first) = estimates.first() {
+                    let delta = estimate::cost_at(&sub, &est, &first.spreads, &eparams)
+                        - estimate::cost_at(&sub, first, &first.spreads, &eparams);
+                    if delta < AMBIGUOUS_CHI2 {
+                        // It competes: measure its own spreads too.
+                        let again = Start {
+                            poses: est.poses.clone(),
+                            focal_scale: est.focal_scale,
+                            spreads: est.spreads,
+                        };
+                        if let Ok(mut full) = estimate::estimate(&sub, &again, &eparams) {
+                            normalise_scale(&sub, &mut full);
+                            est = full;
+                        }
+                    }
+                }
                 estimates.push(est);
             }
             Err(e) if estimates.is_empty() => return Err(e),
@@ -322,8 +394,11 @@ pub(crate) fn best_of(
     let k = (0..estimates.len()).min_by(|&a, &b| costs[a].total_cmp(&costs[b]))?;
     let best = estimates.swap_remove(k);
     let base = estimate::cost_at(evidence, &best, &best.spreads, params);
+    // The same solution, found twice: its depths within the estimate's own deviation.
+    let same = 3.0 * median_crossing_sigma(evidence, &best);
     let mut alternatives: Vec<Alternative> = estimates
         .iter()
+        .filter(|e| depth_difference(evidence, &best, e) > same)
         .map(|e| {
             let delta_chi2 = estimate::cost_at(evidence, e, &best.spreads, params) - base;
             Alternative {
@@ -335,6 +410,23 @@ pub(crate) fn best_of(
         .collect();
     alternatives.sort_by(|a, b| a.delta_chi2.total_cmp(&b.delta_chi2));
     Some((best, alternatives))
+}
+
+/// The median relative depth deviation that `est` gives the crossings (each on its first
+/// plane).
+fn median_crossing_sigma(evidence: &Evidence, est: &Estimate) -> f64 {
+    let sigmas: Vec<f64> = evidence
+        .crossings
+        .iter()
+        .step_by(7)
+        .filter_map(|c| {
+            let slot = evidence.planes[c.a as usize];
+            let ray = evidence.rays.ray(c.u, est.focal_scale)?;
+            let s = est.depth_sigma(slot.pose as usize, usize::from(slot.laser), &ray);
+            s.is_finite().then_some(s)
+        })
+        .collect();
+    super::median(sigmas).unwrap_or(0.0)
 }
 
 /// Median relative difference of the depths two estimates give at the crossings (each

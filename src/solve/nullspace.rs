@@ -134,7 +134,7 @@ fn gauge_shift(nm: &mut DMatrix<f64>) -> Option<f64> {
 
 /// Vectors of the subspace iteration: the two wanted and two more, which speed the
 /// convergence of the second to the ratio `λ₂ / λ₅`.
-const SUBSPACE: usize = 4;
+pub const SUBSPACE: usize = 4;
 /// Subspace iterations at most before the dense fallback.
 const MAX_SUBSPACE_ITERATIONS: usize = 100;
 
@@ -149,6 +149,21 @@ pub fn smallest_by_inverse_iteration(
     mat: &faer::Mat<f64>,
     rho: f64,
 ) -> Option<(Vec<f64>, f64, f64)> {
+    let pairs = smallest_pairs(mat, rho)?;
+    let [v0, _] = pairs.vectors;
+    Some((v0, pairs.values[0], pairs.values[1]))
+}
+
+/// The two smallest eigenvectors of a symmetric positive definite matrix and its
+/// [`SUBSPACE`] smallest eigenvalues, ascending.
+pub struct SmallestPairs {
+    pub vectors: [Vec<f64>; 2],
+    pub values: [f64; SUBSPACE],
+}
+
+/// The subspace iteration of [`smallest_by_inverse_iteration`], keeping the two
+/// smallest eigenvectors and every Ritz value.
+pub fn smallest_pairs(mat: &faer::Mat<f64>, rho: f64) -> Option<SmallestPairs> {
     let dim = mat.nrows();
     if dim < 2 * SUBSPACE {
         return None;
@@ -185,8 +200,15 @@ pub fn smallest_by_inverse_iteration(
             return None;
         }
         if (l1 - last).abs() <= 1e-9 * l1.abs() {
-            let v0 = (0..dim).map(|i| x[(i, 0)]).collect();
-            return Some((v0, l0.max(0.0), l1));
+            let column = |j: usize| (0..dim).map(|i| x[(i, j)]).collect::<Vec<f64>>();
+            let mut values = [0.0; SUBSPACE];
+            for (k, v) in values.iter_mut().enumerate() {
+                *v = eig.eigenvalues[order[k]].max(0.0);
+            }
+            return Some(SmallestPairs {
+                vectors: [column(0), column(1)],
+                values,
+            });
         }
         last = l1;
     }
