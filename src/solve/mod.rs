@@ -39,6 +39,7 @@
 //! about 1) and depths are positive; the caller rescales to metric units.
 
 pub mod calibrate;
+pub mod centre;
 pub mod estimate;
 pub mod evidence;
 pub mod extend;
@@ -53,7 +54,7 @@ pub mod subset;
 pub mod synthetic;
 pub mod terms;
 
-pub use calibrate::{calibrate, Calibration, PlaneVerdict};
+pub use calibrate::{calibrate, calibrate_from, Calibration, PlaneVerdict};
 
 use crate::intersect::Crossing;
 use crate::simulate::scene::mix64;
@@ -176,8 +177,8 @@ impl Default for SolveParams {
             min_crossings_per_plane: 3,
             min_global_crossings: 6,
             min_sin_angle: 0.1,
-            min_curve_bend_px: 3.0,
-            min_curve_bend: 3.0 / 1000.0,
+            min_curve_bend_px: 1.0,
+            min_curve_bend: 1.0 / 1000.0,
             outlier_mad_k: 4.0,
             estimate_focal: false,
             robust_rounds: 12,

@@ -137,8 +137,12 @@ fn wrong_crossings_are_rejected_and_do_not_spoil_the_planes() {
         crossings: &cr,
         partner: &s.partner,
     };
+    // The linear start's own rejection, at a bend that keeps random wrong crossings
+    // (which bend any curve) from carrying a curve into its global subset; below that,
+    // the joint estimate judges.
     let params = SolveParams {
         max_global_planes: 40,
+        min_curve_bend_px: 3.0,
         ..SolveParams::default()
     };
     let sol = solve(&problem, &params).expect("solvable");
