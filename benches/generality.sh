@@ -9,13 +9,20 @@
 # self-calibrated median and p95 relative depth error, the share of points on wrong
 # planes (one frame's one laser whose points' median error is over 2 %), the coverage of
 # the visible lit area, the ratios self / true planes of the median and of the coverage,
-# the seconds of both reconstructions, and PASS or FAIL (with the bounds missed) on:
+# the visible-lit coverage of the oracle (below), the seconds of the self-calibrated and
+# true-plane reconstructions, and PASS or FAIL (with the bounds missed) on:
 #   wrong    points on wrong planes < 0.5 %
 #   median   median <= 2 x the true planes' median + 0.01 percentage points
 #   coverage visible-lit coverage >= 90 % of the true planes'
 #   focal    (with FOCAL_OFF) the recovered focal scale within 0.5 % of 1 / FOCAL_OFF
-# then one summary line: passes / total, the worst wrong-plane share, the median of the
-# median ratios, and the failed reconstructions (and simulations). A simulation or
+# The oracle is the self-calibration started from the true planes (`reconstruct
+# --start-planes`): every plane still estimated from the crossings and triangulated
+# where they determine it, so it shows what the crossings hold whatever a start finds.
+# A configuration that misses the median or coverage bound only where the oracle misses
+# it too (and the self-calibration gets within the same bound of the oracle, with no
+# wrong planes) is WEAK: its geometry does not fix more, and the solver gave what it
+# does. Then one summary line: passes, weak ones, the worst wrong-plane share, the
+# median of the median ratios, and the failed reconstructions (and simulations). A simulation or
 # reconstruction that fails (or times out) is a FAIL row carrying the first line of its
 # error; the script goes on.
 #
@@ -216,6 +223,20 @@ if s and t:
         fails.append("median")
     if not r["coverage_ratio"] >= 0.9:
         fails.append("coverage")
+# What the crossings hold: the self-calibration started from the true planes. A bound
+# that it misses as well is the evidence's, not the solver's: the verdict says WEAK
+# (the self-calibration gave what the crossings determine, and no wrong planes).
+o = truth("oracle")
+if o:
+    r.update(oracle_median=o["relative_error"]["median"], oracle_coverage=coverage(o))
+weak = []
+if s and t and o and r.get("wrong_share") is not None and r["wrong_share"] < 0.005:
+    tm, om, sm = t["relative_error"]["median"], o["relative_error"]["median"], s["relative_error"]["median"]
+    if "median" in fails and not om <= 2 * tm + 1e-4 and sm <= 2 * om + 1e-4:
+        weak.append("median")
+    if ("coverage" in fails and not coverage(o) >= 0.9 * coverage(t)
+            and coverage(s) >= 0.9 * coverage(o)):
+        weak.append("coverage")
 if focal_off and not sim_err:
     rep = load(os.path.join(run, "self-report.json")) or {}
     r["focal_true"] = 1 / float(focal_off)
@@ -223,7 +244,13 @@ if focal_off and not sim_err:
     r["focal_scale_std"] = rep.get("focal_scale_std")
     if r["focal_scale"] is None or abs(r["focal_scale"] / r["focal_true"] - 1) > 0.005:
         fails.append("focal")
-r["verdict"] = "PASS" if not fails else "FAIL(" + ",".join(fails) + ")"
+left = [f for f in fails if f not in weak]
+if not fails:
+    r["verdict"] = "PASS"
+elif not left:
+    r["verdict"] = "WEAK(" + ",".join(weak) + ")"
+else:
+    r["verdict"] = "FAIL(" + ",".join(fails) + ")"
 cols = os.environ["COLUMNS_TSV"].split()
 print("\t".join("" if r.get(c) is None else str(r[c]).replace("\t", " ") for c in cols))
 PY
@@ -243,7 +270,8 @@ for line in sys.argv[1:]:
     summary = r["summary"] if len(r["summary"]) <= 34 else r["summary"][:33] + "…"
     text = (f"{r['seed']:>6} {r['kind']:<10} {summary:<34} {pct('median'):>9} {pct('p95'):>9} "
             f"{pct('wrong_share', 2):>8} {pct('coverage', 1):>7} {ratio('median_ratio'):>6} "
-            f"{ratio('coverage_ratio'):>6} {r['self_seconds']:>6} {r['true_seconds']:>6}")
+            f"{ratio('coverage_ratio'):>6} {pct('oracle_coverage', 1):>7} "
+            f"{r['self_seconds']:>6} {r['true_seconds']:>6}")
     if "focal_true" in cols:
         f = f"{float(r['focal_scale']):.4f}" if r.get("focal_scale") else "-"
         text += f" {f:>7}/{float(r['focal_true']):.4f}"
@@ -262,12 +290,13 @@ import os, statistics, sys
 cols = os.environ["COLUMNS_TSV"].split()
 rows = [dict(zip(cols, l.rstrip("\n").split("\t"))) for l in open(sys.argv[1])][1:]
 passes = sum(r["verdict"] == "PASS" for r in rows)
+weak = sum(r["verdict"].startswith("WEAK") for r in rows)
 wrong = [float(r["wrong_share"]) for r in rows if r.get("wrong_share")]
 ratios = [float(r["median_ratio"]) for r in rows if r.get("median_ratio")]
 failed_self = sum(bool(r["self_error"]) for r in rows)
 failed_true = sum(bool(r["true_error"]) for r in rows)
 failed_sim = sum(bool(r["sim_error"]) for r in rows)
-print(f"{passes} / {len(rows)} pass; worst wrong-plane share "
+print(f"{passes} / {len(rows)} pass, {weak} weak (the crossings fix no more); worst wrong-plane share "
       + (f"{100 * max(wrong):.2f} %" if wrong else "-")
       + "; median of the median ratios "
       + (f"{statistics.median(ratios):.2f}" if ratios else "-")
@@ -277,14 +306,15 @@ PY
 }
 
 COLUMNS_TSV="seed kind summary median p95 wrong_share wrong_planes planes coverage \
-true_median true_coverage median_ratio coverage_ratio self_seconds true_seconds"
+true_median true_coverage median_ratio coverage_ratio oracle_median oracle_coverage \
+self_seconds true_seconds"
 [ -n "$FOCAL_OFF" ] && COLUMNS_TSV+=" focal_scale focal_scale_std focal_true"
 COLUMNS_TSV+=" verdict self_error true_error sim_error"
 export COLUMNS_TSV
 echo "$COLUMNS_TSV" | tr ' ' '\t' > "$TSV"
 
-printf '%6s %-10s %-34s %9s %9s %8s %7s %6s %6s %6s %6s' seed kind summary median p95 \
-    wrong cover "med×" "cov×" "s self" "s true"
+printf '%6s %-10s %-34s %9s %9s %8s %7s %6s %6s %7s %6s %6s' seed kind summary median p95 \
+    wrong cover "med×" "cov×" "oracle" "s self" "s true"
 [ -n "$FOCAL_OFF" ] && printf ' %15s' "focal found/true"
 printf '  %s\n' verdict
 for seed in $SEEDS; do
@@ -309,6 +339,7 @@ for seed in $SEEDS; do
     fi
     reconstruct self "$sim" "$camera" "${self_args[@]}"
     self_secs=$SECS self_err=$ERR
+    reconstruct oracle "$sim" "$camera" "${self_args[@]}" --start-planes "$sim"
     reconstruct true "$sim" "$sim/camera.yml" --true-planes "$sim"
     line=$(row "$seed" "$sim" "$run" "$self_secs" "$SECS" "$self_err" "$ERR")
     echo "$line" >> "$TSV"

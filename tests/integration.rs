@@ -154,7 +154,7 @@ fn reconstruct_then_compare_on_the_fixture() {
     );
     let rep: Value =
         serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
-    assert_eq!(rep["version"], 1);
+    assert_eq!(rep["version"], crossline::pipeline::REPORT_VERSION);
     assert_eq!(rep["frames"], 100);
     assert!(rep["crossings"].as_u64().expect("crossings") > 100);
     assert!(rep["planes_solved"].as_u64().expect("solved") >= 30);

@@ -49,6 +49,10 @@ pub enum PlaneSource<'a> {
     /// Known planes per frame and laser (e.g. a simulation's truth): the same pipeline
     /// with a perfectly calibrated projector, the yardstick of the self-calibration.
     Known(&'a [[Option<Vector3<f64>>; 2]]),
+    /// Self-calibration started from these planes per frame and laser instead of its
+    /// linear start (evaluation: from a simulation's truth it shows what the crossings
+    /// determine when the start is perfect).
+    StartedFrom(&'a [[Option<Vector3<f64>>; 2]]),
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -324,6 +328,26 @@ pub fn reconstruct_curves(
             calibration: Box::new(solve::calibrate(&evidence, &config.solve)?),
             plane_index: &plane_index,
         },
+        PlaneSource::StartedFrom(known) => {
+            let start: Vec<Option<Vector3<f64>>> = evidence
+                .planes
+                .iter()
+                .map(|slot| {
+                    let frame = evidence.pose_frames[slot.pose as usize] as usize;
+                    known
+                        .get(frame)
+                        .and_then(|f| f[usize::from(slot.laser & 1)])
+                })
+                .collect();
+            Planes::Calibrated {
+                calibration: Box::new(solve::calibrate_from(
+                    &evidence,
+                    &config.solve,
+                    Some(&start),
+                )?),
+                plane_index: &plane_index,
+            }
+        }
         PlaneSource::Known(known) => Planes::Known(
             scan.planes()
                 .iter()

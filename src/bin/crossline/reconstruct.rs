@@ -64,8 +64,14 @@ pub struct Args {
     /// Evaluation only: take the laser planes from a simulation's truth.json (in DIR)
     /// instead of self-calibrating, to measure how close self-calibration comes to a
     /// perfectly calibrated projector.
-    #[arg(long, value_name = "SIMDIR")]
+    #[arg(long, value_name = "SIMDIR", conflicts_with = "start_planes")]
     true_planes: Option<PathBuf>,
+    /// Evaluation only: self-calibrate, but start from a simulation's true planes (in
+    /// DIR/truth.json) instead of the linear start. Every plane is still estimated from
+    /// the crossings and triangulated where they determine it: what this leaves out, the
+    /// evidence does not fix, whatever a start finds.
+    #[arg(long, value_name = "SIMDIR")]
+    start_planes: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -87,13 +93,14 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         tracing::warn!("using the {} whole frames before: {why}", frames.len());
     }
     tracing::info!(frames = frames.len(), input = %args.input.display(), "reconstructing");
-    let known = match &args.true_planes {
+    let known = match args.true_planes.as_ref().or(args.start_planes.as_ref()) {
         Some(dir) => Some(true_planes(dir, frames.len())?),
         None => None,
     };
-    let source = match &known {
-        Some(planes) => PlaneSource::Known(planes),
-        None => PlaneSource::SelfCalibrated,
+    let source = match (&known, args.start_planes.is_some()) {
+        (Some(planes), false) => PlaneSource::Known(planes),
+        (Some(planes), true) => PlaneSource::StartedFrom(planes),
+        (None, _) => PlaneSource::SelfCalibrated,
     };
     let bar = progress_bar(frames.len() as u64);
     let rec = reconstruct::reconstruct_files(
