@@ -29,6 +29,7 @@
 //!   the cloud stream protocol and status lines.
 //! - [`compare`]: cloud-to-reference and cloud-to-truth accuracy evaluation.
 //! - [`pfm`]: Portable Float Map I/O for depth maps.
+//! - [`rng`]: the SplitMix64 hash and generator the solver and the simulator share.
 
 pub mod camera;
 pub mod camera_file;
@@ -43,6 +44,7 @@ pub mod pipeline;
 pub mod ply;
 pub mod reconstruct;
 pub mod ring;
+pub mod rng;
 pub mod serve;
 pub mod simulate;
 pub mod solve;

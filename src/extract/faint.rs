@@ -387,7 +387,7 @@ mod tests {
         let mut state = seed;
         let mut gauss = move || {
             let mut u = || {
-                state = crate::simulate::scene::mix64(state.wrapping_add(0x9e37_79b9_7f4a_7c15));
+                state = crate::rng::mix64(state.wrapping_add(0x9e37_79b9_7f4a_7c15));
                 ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
             };
             let (a, b) = (u(), u());

@@ -1139,14 +1139,7 @@ fn intersect(g: &Geometry, o: &V3, d: &V3, t_max: f64) -> Option<(f64, V3)> {
     }
 }
 
-/// SplitMix64 finaliser: a good 64-bit hash of a 64-bit value.
-#[inline]
-pub(crate) fn mix64(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
+pub(crate) use crate::rng::mix64;
 
 fn lattice(i: i64, j: i64, k: i64, salt: u64) -> f64 {
     let h = mix64(

@@ -15,7 +15,7 @@
 //! `v = n / (n · P)`.
 
 use crate::intersect::Crossing;
-use crate::simulate::motion::SplitMix64;
+use crate::rng::SplitMix64;
 use nalgebra::Vector3;
 
 /// The simulator's SplitMix64 with the draws synthetic scenes need.
