@@ -44,8 +44,6 @@ pub mod estimate;
 pub mod evidence;
 pub mod extend;
 pub mod init;
-pub mod joint;
-pub mod motion;
 pub mod nullspace;
 pub mod ortho;
 pub mod pose;
@@ -57,7 +55,7 @@ pub mod terms;
 pub use calibrate::{calibrate, calibrate_from, Calibration, PlaneVerdict};
 
 use crate::intersect::Crossing;
-use crate::simulate::scene::mix64;
+use crate::rng::mix64;
 use extend::{fit_plane, FitContext};
 use nalgebra::Vector3;
 use serde::Deserialize;
@@ -140,10 +138,6 @@ pub struct SolveParams {
     pub refine_rounds: usize,
     /// A curve with more than this fraction of its crossings rejected is rejected.
     pub max_outlier_fraction: f64,
-    /// Planes left free to turn about their 3D line (crossings on one image line, no
-    /// solved partner) take the turn of the same laser's solved planes at most this
-    /// many frames away ([`motion`]); 0 leaves them unsolved.
-    pub motion_prior_max_gap: u32,
     /// Only curves whose strongest point reaches this ridge strength (the stripe's
     /// contrast, grey levels) shape the planes; fainter ones are triangulated on the
     /// planes the strong ones give, if a crossing confirms them. Extraction goes lower
@@ -162,12 +156,6 @@ pub struct SolveParams {
     /// together) were the worst of the water scenes, 1.3-3 % off. Relative, so that
     /// noisier crossings everywhere drop nothing more. 0 keeps all.
     pub uncertain_plane_ratio: f64,
-    /// Gauss–Newton steps of the final refinement of every solved plane together
-    /// ([`joint`]): crossings and the orthogonality of every cross weighed at once, so
-    /// that the common shift `w` (and an estimated focal scale) is not set by the
-    /// crosses with the planes held as they are. 0 leaves the planes as the stages
-    /// before give them.
-    pub joint_refinement_steps: usize,
 }
 
 impl Default for SolveParams {
@@ -184,11 +172,9 @@ impl Default for SolveParams {
             robust_rounds: 12,
             refine_rounds: 2,
             max_outlier_fraction: 0.5,
-            motion_prior_max_gap: 3,
             min_curve_strength: 40.0,
             min_crossing_strength: 15.0,
             uncertain_plane_ratio: 4.0,
-            joint_refinement_steps: 5,
         }
     }
 }
