@@ -19,6 +19,7 @@
 //! | `scale_mode`, `scale_factor` | how the global scale was fixed, and the factor applied |
 //! | `points`, `triangulation` | the cloud, and what the other checks left out |
 //! | `seconds` | time per stage |
+//! | `warnings` | why the result is doubtful, as logged (empty when nothing is) |
 
 use nalgebra::Vector3;
 use serde::Serialize;
@@ -69,6 +70,7 @@ pub struct ReconstructReport {
     pub points: usize,
     pub triangulation: TriangulateStats,
     pub seconds: StageTimes,
+    pub warnings: Vec<String>,
 }
 
 /// A finished reconstruction.
@@ -121,6 +123,7 @@ pub(crate) fn assemble(
         points: out.cloud.len(),
         triangulation: out.stats,
         seconds,
+        warnings: Vec::new(),
     };
     Reconstruction {
         planes: out.planes.iter().map(|p| p.map(|v| v / factor)).collect(),

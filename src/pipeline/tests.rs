@@ -169,3 +169,17 @@ fn faint_and_stray_curves_neither_shape_the_planes_nor_reach_the_cloud() {
         assert!(kept > 0, "faint cross, laser {laser}");
     }
 }
+
+/// A cloud that most of its curves' crossings contradict is called doubtful; one that
+/// loses a seventh of its points to the crossing check (turbid water) is not.
+#[test]
+fn planes_most_curves_contradict_are_doubtful() {
+    let stats = |kept, inconsistent_points| crate::cloud::TriangulateStats {
+        kept,
+        inconsistent_points,
+        ..Default::default()
+    };
+    let wrong = super::contradicted(&stats(50_791, 205_310)).expect("a doubt");
+    assert!(wrong.contains("205310 points"), "{wrong}");
+    assert_eq!(super::contradicted(&stats(449_423, 77_947)), None);
+}
