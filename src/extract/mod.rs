@@ -91,6 +91,8 @@ pub mod colour;
 mod detect;
 mod faint;
 mod link;
+pub mod local;
+pub mod score;
 pub mod yuyv;
 
 use std::path::Path;
@@ -449,6 +451,11 @@ pub struct Extractor {
     /// The frame being extracted came from YUYV: only some tiles hold its pixels, so
     /// the faint-stripe activation is skipped ([`yuyv`]).
     yuyv_frame: bool,
+    /// The local background ([`Background::local`]) and its scratch.
+    local: local::LocalBackground,
+    local_image: RgbImage,
+    /// The frame being extracted is measured against its local background.
+    local_active: bool,
 }
 
 impl Extractor {
@@ -490,6 +497,9 @@ impl Extractor {
             faint: faint::FaintRidges::default(),
             dark: DarkCells::default(),
             yuyv_frame: false,
+            local: local::LocalBackground::new(local::DEFAULT_RADIUS_PX),
+            local_image: RgbImage::new(0, 0),
+            local_active: false,
         })
     }
 
@@ -532,7 +542,22 @@ impl Extractor {
                 });
             }
         }
+        if background.is_local() {
+            let mut image = std::mem::take(&mut self.local_image);
+            self.local.estimate_into(frame, &mut image);
+            self.local_active = true;
+            let curves = self.extract_from(&mut WholeFrame(frame), &image);
+            self.local_active = false;
+            self.local_image = image;
+            return curves;
+        }
         self.extract_from(&mut WholeFrame(frame), background.image())
+    }
+
+    /// The local background of the last frame extracted against
+    /// [`Background::local`] (empty before).
+    pub fn local_background(&self) -> &RgbImage {
+        &self.local_image
     }
 
     /// The curves of `src`'s frame (of the camera's size) against `background`.
@@ -541,7 +566,7 @@ impl Extractor {
         src: &mut dyn TileFrame,
         background: &RgbImage,
     ) -> Result<Vec<Curve>, ExtractError> {
-        self.activate_rgb(src.frame(), background);
+        self.activate_rgb(src.frame(), background, self.local_active);
         let mut curves = Vec::new();
         self.stats = ExtractStats::default();
         for laser in 0..self.params.lasers.len() {
@@ -631,7 +656,7 @@ impl Extractor {
     /// a wide one fills a tile with no coloured fringe in it). A cheap byte-wise test
     /// (any channel of the difference reaching `min_value`) runs over every tile-wide
     /// chunk of every row; the look-up table only on chunks that pass.
-    fn activate_rgb(&mut self, frame: &RgbImage, background: &RgbImage) {
+    fn activate_rgb(&mut self, frame: &RgbImage, background: &RgbImage, local: bool) {
         for a in &mut self.active {
             a.fill(false);
         }
@@ -666,7 +691,9 @@ impl Extractor {
                     );
                     if let Some(c) = self.lut.classify(dr, dg, db) {
                         if c < n_lasers {
-                            self.active[c as usize][t] = true;
+                            if !local || purer_than_surface([dr, dg, db], b) {
+                                self.active[c as usize][t] = true;
+                            }
                         } else if c == colour::Class::White as u8 {
                             self.white[t] = true;
                         } else {
@@ -684,7 +711,7 @@ impl Extractor {
         }
         // Stripes too faint for any pixel to reach `min_value`.
         self.dark.lift.clear();
-        if self.params.faint_activation && !self.yuyv_frame {
+        if self.params.faint_activation && !self.yuyv_frame && !local {
             self.faint.activate(
                 fr,
                 bg,
@@ -895,6 +922,19 @@ const NEGLIGIBLE_STEP: f32 = 0.02;
 /// stripe changes over tens of pixels.
 const STEP_RUN: usize = 21;
 
+/// Whether the excess `d` over a local background is more saturated than the surface
+/// under it (`surface`, the local background's pixel), halfway from the surface's
+/// saturation to a pure hue. A laser's light is nearly monochrome, so what it adds is
+/// far purer than any lit surface; a surface's own texture, which a local background
+/// (unlike a laser-off frame) leaves in the excess, has the surface's colour.
+#[inline]
+fn purer_than_surface(d: [u8; 3], surface: &[u8]) -> bool {
+    let (_, s_excess) = colour::hue_saturation(d[0] as f32, d[1] as f32, d[2] as f32);
+    let (_, s_surface) =
+        colour::hue_saturation(surface[0] as f32, surface[1] as f32, surface[2] as f32);
+    s_excess >= 0.5 * (1.0 + s_surface)
+}
+
 /// The tiles within `r` tiles of tile `t` (itself included) on a `tiles_x` × `tiles_y`
 /// grid.
 pub(crate) fn tiles_near(
@@ -983,7 +1023,7 @@ fn response_rgb<'a>(
                     f[1].saturating_add(lift[1]).saturating_sub(b[1]),
                     f[2].saturating_add(lift[2]).saturating_sub(b[2]),
                 );
-                let (r, other_laser) = lut.response(laser, dr, dg, db);
+                let (r, other_laser) = lut.response_raw(laser, [dr, dg, db], f);
                 *m = u8::from(other_laser);
                 *o = r as f32;
             }
