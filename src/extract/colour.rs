@@ -277,6 +277,28 @@ impl ColourLut {
         }
         self.response(laser, d[0], d[1], d[2])
     }
+
+    /// [`Self::response_raw`] against a local background: the excess there still
+    /// holds the surface's texture, in the surface's colour, where a laser-off frame
+    /// would have taken it out. So the response is only what the laser's own channel
+    /// has beyond the largest other one (a laser is nearly monochrome; a grey or
+    /// pale texture gives nothing), except where the own channel is clipped.
+    #[inline]
+    pub fn response_local(&self, laser: u8, d: [u8; 3], raw: &[u8]) -> (u8, bool) {
+        let (r, masked) = self.response_raw(laser, d, raw);
+        // Clipped in every channel is white in the raw frame and, over a local
+        // background, in the excess too: a lamp or a specular spot as much as a
+        // stripe's core, and only the latter has a laser-coloured flank.
+        let all_clipped = raw[..3].iter().all(|&v| v >= CLIP_LEVEL);
+        if masked || (self.own_clipped(laser, raw) && !all_clipped) {
+            return (r, masked);
+        }
+        let [cr, cg, cb] = self.channels[laser as usize];
+        let foreign = (d[0] * u8::from(!cr))
+            .max(d[1] * u8::from(!cg))
+            .max(d[2] * u8::from(!cb));
+        (r.saturating_sub(foreign), false)
+    }
 }
 
 #[cfg(test)]

@@ -265,7 +265,7 @@ mod tests {
                 image::Rgb(v)
             })
         };
-        ext(&ext(img, u8::min, 255), u8::max)
+        ext(&ext(img, u8::min, 255), u8::max, 0)
     }
 
     #[test]

@@ -87,6 +87,7 @@
 //! dropped from all three.
 
 pub mod background;
+mod checks;
 pub mod colour;
 mod detect;
 mod faint;
@@ -425,6 +426,12 @@ pub struct ExtractStats {
     /// Tiles activated by following curves out of the active ones, summed over the
     /// lasers and rounds.
     pub follow_tiles: usize,
+    /// Points of the curves, and those measured where their laser's own channel is
+    /// clipped (through the other channels, [`ColourLut::response_raw`]).
+    pub points: usize,
+    pub clipped_points: usize,
+    /// Points of curves dropped as another laser's stripe seen a second time.
+    pub repeated_points: usize,
 }
 
 /// The per-frame extractor; owns and reuses all its scratch buffers.
@@ -456,6 +463,8 @@ pub struct Extractor {
     local_image: RgbImage,
     /// The frame being extracted is measured against its local background.
     local_active: bool,
+    presence: checks::Presence,
+    repeat_scratch: Vec<u8>,
 }
 
 impl Extractor {
@@ -500,6 +509,8 @@ impl Extractor {
             local: local::LocalBackground::new(local::DEFAULT_RADIUS_PX),
             local_image: RgbImage::new(0, 0),
             local_active: false,
+            presence: checks::Presence::default(),
+            repeat_scratch: Vec::new(),
         })
     }
 
@@ -572,7 +583,14 @@ impl Extractor {
         for laser in 0..self.params.lasers.len() {
             self.detector.prepare(
                 &self.active[laser],
-                &mut response_rgb(&self.lut, laser as u8, src.frame(), background, &self.dark),
+                &mut response_rgb(
+                    &self.lut,
+                    laser as u8,
+                    src.frame(),
+                    background,
+                    &self.dark,
+                    self.local_active,
+                ),
             );
             self.detector
                 .detect(&self.active[laser], self.params.low_contrast);
@@ -588,7 +606,14 @@ impl Extractor {
                 src.ensure(&self.grown, self.detector.tiles_x, self.detector.tiles_y);
                 self.detector.extend(
                     &self.grown,
-                    &mut response_rgb(&self.lut, laser as u8, src.frame(), background, &self.dark),
+                    &mut response_rgb(
+                        &self.lut,
+                        laser as u8,
+                        src.frame(),
+                        background,
+                        &self.dark,
+                        self.local_active,
+                    ),
                 );
                 self.detector
                     .detect_more(&self.grown, self.params.low_contrast);
@@ -605,7 +630,21 @@ impl Extractor {
             self.stats.active_tiles += self.active[laser].iter().filter(|a| **a).count();
             self.stats.ridge_points += self.detector.points.len();
         }
+        if self.params.lasers.len() > 1 {
+            let size = (self.detector.width, self.detector.height);
+            self.stats.repeated_points =
+                checks::drop_repeats(&mut curves, size, &mut self.repeat_scratch);
+        }
+        self.stats.points = curves.iter().map(|c| c.points_px.len()).sum();
+        self.stats.clipped_points = checks::clipped_points(&self.lut, src.frame(), &curves);
+        self.presence
+            .observe(&self.params.lasers, &curves, self.stats.clipped_points);
         Ok(curves)
+    }
+
+    /// Whether the extractor has told that one of its two lasers is not in the frames.
+    pub fn one_laser_absent(&self) -> bool {
+        self.presence.absent_told()
     }
 
     /// Marks in `self.grown` the inactive tiles of laser `laser` that lie ahead of an
@@ -988,6 +1027,7 @@ fn response_rgb<'a>(
     frame: &'a RgbImage,
     background: &'a RgbImage,
     dark: &'a DarkCells,
+    local: bool,
 ) -> impl FnMut(usize, usize, &mut [f32], &mut [u8]) + 'a {
     let width = frame.width() as usize;
     let (fr, bg) = (frame.as_raw(), background.as_raw());
@@ -1023,7 +1063,14 @@ fn response_rgb<'a>(
                     f[1].saturating_add(lift[1]).saturating_sub(b[1]),
                     f[2].saturating_add(lift[2]).saturating_sub(b[2]),
                 );
-                let (r, other_laser) = lut.response_raw(laser, [dr, dg, db], f);
+                let (r, other_laser) = if local {
+                    lut.response_local(laser, [dr, dg, db], f)
+                } else {
+                    // Against a laser-off frame the difference is the laser's
+                    // light alone, clipped cores included (a wide clipped top is
+                    // centred by the automatic scale).
+                    lut.response(laser, dr, dg, db)
+                };
                 *m = u8::from(other_laser);
                 *o = r as f32;
             }
@@ -1034,3 +1081,5 @@ fn response_rgb<'a>(
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_real;

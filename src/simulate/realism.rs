@@ -14,7 +14,7 @@ use super::motion::SplitMix64;
 use super::scene::mix64;
 
 /// The realistic effects of one run; [`Realism::default`] has none.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Realism {
     /// A checkerboard target painted over part of the view (ambient grey levels).
     pub checker: Option<Checker>,
@@ -41,19 +41,32 @@ pub struct Realism {
     pub moving_object: bool,
 }
 
+impl Default for Realism {
+    fn default() -> Self {
+        Self::none()
+    }
+}
+
 impl Realism {
     /// No effect: the clean renderer.
     pub fn none() -> Self {
         Self {
+            checker: None,
+            specular_spots: 0,
+            bright_lines: 0,
+            coloured_patch: None,
             laser_gain: 1.0,
+            crosstalk: 0.0,
+            bloom: None,
+            chroma_420: false,
             lasers_on: [true, true],
-            ..Self::default()
+            moving_object: false,
         }
     }
 
     /// Whether any effect is on.
     pub fn is_none(&self) -> bool {
-        *self == Self::none() || *self == Self::default()
+        *self == Self::none()
     }
 
     /// Laser gain, with the unset default read as 1.
@@ -65,9 +78,9 @@ impl Realism {
         }
     }
 
-    /// Whether laser `k` is on (the unset default has both on).
+    /// Whether laser `k` is on.
     pub(crate) fn laser_on(&self, k: usize) -> bool {
-        self.lasers_on[k] || self.lasers_on == [false, false]
+        self.lasers_on[k]
     }
 }
 
