@@ -209,7 +209,7 @@ fn realistic_frames_without_background() {
         };
         let mut ex = Extractor::new(&params, &cam).expect("extractor");
         let local = Background::local(cam.width, cam.height);
-        for index in [9] {
+        for index in [9, 22] {
             let mut img = RgbImage::new(cam.width, cam.height);
             let mut lit = vec![0u8; (cam.width * cam.height) as usize];
             sim.render_frame_into(index, &mut img, Some(&mut lit));
