@@ -47,6 +47,22 @@
 //!    `min_value` (far along the sheet under water) activates no tile of its own, but
 //!    hysteresis may follow it down to `low_contrast`.
 //!
+//! # Without a laser-off frame
+//! [`Background::local`] has the extractor estimate each frame's own background
+//! ([`local`]: a morphological opening 17 px wide, its noise bias measured and added
+//! back). The excess over it still holds the surfaces' texture, so there a laser's
+//! response is only what its own channel has beyond the largest other one
+//! ([`ColourLut::response_local`]: nothing for white or grey, in the raw frame or in the
+//! excess), except where its own channel is clipped and the others carry the core; a
+//! tile is activated only by pixels whose excess is purer in hue than the surface under
+//! them, and the faint-stripe activation (texture is ridge-like) is off.
+//!
+//! # Checks ([`ExtractStats`], `checks`)
+//! Points on a clipped own channel are counted, and a large share is warned about once;
+//! a curve of one laser lying along a stronger curve of the other is dropped (one
+//! overexposed laser read twice); with two lasers set and only one in the frames, that
+//! is said once.
+//!
 //! # Scale
 //! With no `line_width_px` (the default) each active tile measures its stripe's width
 //! (FWHM) on the response around it: the pixels at or above half the local maximum
