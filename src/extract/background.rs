@@ -44,6 +44,9 @@ struct Running {
 pub struct Background {
     image: RgbImage,
     running: Option<Running>,
+    /// No laser-off frame: the extractor estimates each frame's own
+    /// ([`super::local`]); `image` is black.
+    local: bool,
 }
 
 impl Background {
@@ -52,7 +55,23 @@ impl Background {
         Self {
             image,
             running: None,
+            local: false,
         }
+    }
+
+    /// No laser-off frame: each frame is measured against its own local background
+    /// (a robust estimate wider than the stripe, [`super::local`]), computed by the
+    /// extractor per frame. What to use when no background is known.
+    pub fn local(width: u32, height: u32) -> Self {
+        Self {
+            local: true,
+            ..Self::black(width, height)
+        }
+    }
+
+    /// Whether this is [`Self::local`].
+    pub fn is_local(&self) -> bool {
+        self.local
     }
 
     /// No background: a black image (the frame itself is the difference).
@@ -97,6 +116,7 @@ impl Background {
                 since_recompute: 0,
             }),
             image: initial,
+            local: false,
         })
     }
 

@@ -237,6 +237,70 @@ impl ColourLut {
     }
 }
 
+/// A raw channel at or above this grey level is clipped by the sensor: what the laser
+/// adds there is lost in that channel.
+pub const CLIP_LEVEL: u8 = 250;
+
+impl ColourLut {
+    /// Whether laser `laser`'s own channel is clipped in the raw pixel `raw`.
+    #[inline]
+    pub fn own_clipped(&self, laser: u8, raw: &[u8]) -> bool {
+        let [r, g, b] = self.channels[laser as usize];
+        (r && raw[0] >= CLIP_LEVEL) || (g && raw[1] >= CLIP_LEVEL) || (b && raw[2] >= CLIP_LEVEL)
+    }
+
+    /// [`Self::response`] with the raw pixel `raw` the difference `d` came from:
+    /// - where the laser's own channel is clipped in `raw`, the light it adds is lost
+    ///   there, and the other channels still carry its core (the sensor's crosstalk,
+    ///   the halo's gradient): the response is the own channel plus the largest other
+    ///   one, which keeps rising to the centre;
+    /// - a pixel white in `raw` and white in its difference is not laser light (a lamp,
+    ///   a white rim, a white square against a darker background): it keeps only what
+    ///   its own channel has beyond the others, nothing for a grey.
+    #[inline]
+    pub fn response_raw(&self, laser: u8, d: [u8; 3], raw: &[u8]) -> (u8, bool) {
+        let [r, g, b] = self.channels[laser as usize];
+        let own = (d[0] * u8::from(r))
+            .max(d[1] * u8::from(g))
+            .max(d[2] * u8::from(b));
+        let foreign = (d[0] * u8::from(!r))
+            .max(d[1] * u8::from(!g))
+            .max(d[2] * u8::from(!b));
+        if self.own_clipped(laser, raw) {
+            return (own.saturating_add(foreign), false);
+        }
+        let white = Class::White as u8;
+        if self.classify(d[0], d[1], d[2]) == Some(white)
+            && self.classify(raw[0], raw[1], raw[2]) == Some(white)
+        {
+            return (own.saturating_sub(foreign), false);
+        }
+        self.response(laser, d[0], d[1], d[2])
+    }
+
+    /// [`Self::response_raw`] against a local background: the excess there still
+    /// holds the surface's texture, in the surface's colour, where a laser-off frame
+    /// would have taken it out. So the response is only what the laser's own channel
+    /// has beyond the largest other one (a laser is nearly monochrome; a grey or
+    /// pale texture gives nothing), except where the own channel is clipped.
+    #[inline]
+    pub fn response_local(&self, laser: u8, d: [u8; 3], raw: &[u8]) -> (u8, bool) {
+        let (r, masked) = self.response_raw(laser, d, raw);
+        // Clipped in every channel is white in the raw frame and, over a local
+        // background, in the excess too: a lamp or a specular spot as much as a
+        // stripe's core, and only the latter has a laser-coloured flank.
+        let all_clipped = raw[..3].iter().all(|&v| v >= CLIP_LEVEL);
+        if masked || (self.own_clipped(laser, raw) && !all_clipped) {
+            return (r, masked);
+        }
+        let [cr, cg, cb] = self.channels[laser as usize];
+        let foreign = (d[0] * u8::from(!cr))
+            .max(d[1] * u8::from(!cg))
+            .max(d[2] * u8::from(!cb));
+        (r.saturating_sub(foreign), false)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

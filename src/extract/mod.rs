@@ -47,6 +47,22 @@
 //!    `min_value` (far along the sheet under water) activates no tile of its own, but
 //!    hysteresis may follow it down to `low_contrast`.
 //!
+//! # Without a laser-off frame
+//! [`Background::local`] has the extractor estimate each frame's own background
+//! ([`local`]: a morphological opening 17 px wide, its noise bias measured and added
+//! back). The excess over it still holds the surfaces' texture, so there a laser's
+//! response is only what its own channel has beyond the largest other one
+//! ([`ColourLut::response_local`]: nothing for white or grey, in the raw frame or in the
+//! excess), except where its own channel is clipped and the others carry the core; a
+//! tile is activated only by pixels whose excess is purer in hue than the surface under
+//! them, and the faint-stripe activation (texture is ridge-like) is off.
+//!
+//! # Checks ([`ExtractStats`], `checks`)
+//! Points on a clipped own channel are counted, and a large share is warned about once;
+//! a curve of one laser lying along a stronger curve of the other is dropped (one
+//! overexposed laser read twice); with two lasers set and only one in the frames, that
+//! is said once.
+//!
 //! # Scale
 //! With no `line_width_px` (the default) each active tile measures its stripe's width
 //! (FWHM) on the response around it: the pixels at or above half the local maximum
@@ -87,10 +103,13 @@
 //! dropped from all three.
 
 pub mod background;
+mod checks;
 pub mod colour;
 mod detect;
 mod faint;
 mod link;
+pub mod local;
+pub mod score;
 pub mod yuyv;
 
 use std::path::Path;
@@ -423,6 +442,12 @@ pub struct ExtractStats {
     /// Tiles activated by following curves out of the active ones, summed over the
     /// lasers and rounds.
     pub follow_tiles: usize,
+    /// Points of the curves, and those measured where their laser's own channel is
+    /// clipped (through the other channels, [`ColourLut::response_raw`]).
+    pub points: usize,
+    pub clipped_points: usize,
+    /// Points of curves dropped as another laser's stripe seen a second time.
+    pub repeated_points: usize,
 }
 
 /// The per-frame extractor; owns and reuses all its scratch buffers.
@@ -449,6 +474,13 @@ pub struct Extractor {
     /// The frame being extracted came from YUYV: only some tiles hold its pixels, so
     /// the faint-stripe activation is skipped ([`yuyv`]).
     yuyv_frame: bool,
+    /// The local background ([`Background::local`]) and its scratch.
+    local: local::LocalBackground,
+    local_image: RgbImage,
+    /// The frame being extracted is measured against its local background.
+    local_active: bool,
+    presence: checks::Presence,
+    repeat_scratch: Vec<u8>,
 }
 
 impl Extractor {
@@ -490,6 +522,11 @@ impl Extractor {
             faint: faint::FaintRidges::default(),
             dark: DarkCells::default(),
             yuyv_frame: false,
+            local: local::LocalBackground::new(local::DEFAULT_RADIUS_PX),
+            local_image: RgbImage::new(0, 0),
+            local_active: false,
+            presence: checks::Presence::default(),
+            repeat_scratch: Vec::new(),
         })
     }
 
@@ -532,7 +569,22 @@ impl Extractor {
                 });
             }
         }
+        if background.is_local() {
+            let mut image = std::mem::take(&mut self.local_image);
+            self.local.estimate_into(frame, &mut image);
+            self.local_active = true;
+            let curves = self.extract_from(&mut WholeFrame(frame), &image);
+            self.local_active = false;
+            self.local_image = image;
+            return curves;
+        }
         self.extract_from(&mut WholeFrame(frame), background.image())
+    }
+
+    /// The local background of the last frame extracted against
+    /// [`Background::local`] (empty before).
+    pub fn local_background(&self) -> &RgbImage {
+        &self.local_image
     }
 
     /// The curves of `src`'s frame (of the camera's size) against `background`.
@@ -541,13 +593,20 @@ impl Extractor {
         src: &mut dyn TileFrame,
         background: &RgbImage,
     ) -> Result<Vec<Curve>, ExtractError> {
-        self.activate_rgb(src.frame(), background);
+        self.activate_rgb(src.frame(), background, self.local_active);
         let mut curves = Vec::new();
         self.stats = ExtractStats::default();
         for laser in 0..self.params.lasers.len() {
             self.detector.prepare(
                 &self.active[laser],
-                &mut response_rgb(&self.lut, laser as u8, src.frame(), background, &self.dark),
+                &mut response_rgb(
+                    &self.lut,
+                    laser as u8,
+                    src.frame(),
+                    background,
+                    &self.dark,
+                    self.local_active,
+                ),
             );
             self.detector
                 .detect(&self.active[laser], self.params.low_contrast);
@@ -563,7 +622,14 @@ impl Extractor {
                 src.ensure(&self.grown, self.detector.tiles_x, self.detector.tiles_y);
                 self.detector.extend(
                     &self.grown,
-                    &mut response_rgb(&self.lut, laser as u8, src.frame(), background, &self.dark),
+                    &mut response_rgb(
+                        &self.lut,
+                        laser as u8,
+                        src.frame(),
+                        background,
+                        &self.dark,
+                        self.local_active,
+                    ),
                 );
                 self.detector
                     .detect_more(&self.grown, self.params.low_contrast);
@@ -580,7 +646,21 @@ impl Extractor {
             self.stats.active_tiles += self.active[laser].iter().filter(|a| **a).count();
             self.stats.ridge_points += self.detector.points.len();
         }
+        if self.params.lasers.len() > 1 {
+            let size = (self.detector.width, self.detector.height);
+            self.stats.repeated_points =
+                checks::drop_repeats(&mut curves, size, &mut self.repeat_scratch);
+        }
+        self.stats.points = curves.iter().map(|c| c.points_px.len()).sum();
+        self.stats.clipped_points = checks::clipped_points(&self.lut, src.frame(), &curves);
+        self.presence
+            .observe(&self.params.lasers, &curves, self.stats.clipped_points);
         Ok(curves)
+    }
+
+    /// Whether the extractor has told that one of its two lasers is not in the frames.
+    pub fn one_laser_absent(&self) -> bool {
+        self.presence.absent_told()
     }
 
     /// Marks in `self.grown` the inactive tiles of laser `laser` that lie ahead of an
@@ -631,7 +711,7 @@ impl Extractor {
     /// a wide one fills a tile with no coloured fringe in it). A cheap byte-wise test
     /// (any channel of the difference reaching `min_value`) runs over every tile-wide
     /// chunk of every row; the look-up table only on chunks that pass.
-    fn activate_rgb(&mut self, frame: &RgbImage, background: &RgbImage) {
+    fn activate_rgb(&mut self, frame: &RgbImage, background: &RgbImage, local: bool) {
         for a in &mut self.active {
             a.fill(false);
         }
@@ -666,7 +746,9 @@ impl Extractor {
                     );
                     if let Some(c) = self.lut.classify(dr, dg, db) {
                         if c < n_lasers {
-                            self.active[c as usize][t] = true;
+                            if !local || purer_than_surface([dr, dg, db], b) {
+                                self.active[c as usize][t] = true;
+                            }
                         } else if c == colour::Class::White as u8 {
                             self.white[t] = true;
                         } else {
@@ -684,7 +766,7 @@ impl Extractor {
         }
         // Stripes too faint for any pixel to reach `min_value`.
         self.dark.lift.clear();
-        if self.params.faint_activation && !self.yuyv_frame {
+        if self.params.faint_activation && !self.yuyv_frame && !local {
             self.faint.activate(
                 fr,
                 bg,
@@ -895,6 +977,19 @@ const NEGLIGIBLE_STEP: f32 = 0.02;
 /// stripe changes over tens of pixels.
 const STEP_RUN: usize = 21;
 
+/// Whether the excess `d` over a local background is more saturated than the surface
+/// under it (`surface`, the local background's pixel), halfway from the surface's
+/// saturation to a pure hue. A laser's light is nearly monochrome, so what it adds is
+/// far purer than any lit surface; a surface's own texture, which a local background
+/// (unlike a laser-off frame) leaves in the excess, has the surface's colour.
+#[inline]
+fn purer_than_surface(d: [u8; 3], surface: &[u8]) -> bool {
+    let (_, s_excess) = colour::hue_saturation(d[0] as f32, d[1] as f32, d[2] as f32);
+    let (_, s_surface) =
+        colour::hue_saturation(surface[0] as f32, surface[1] as f32, surface[2] as f32);
+    s_excess >= 0.5 * (1.0 + s_surface)
+}
+
 /// The tiles within `r` tiles of tile `t` (itself included) on a `tiles_x` × `tiles_y`
 /// grid.
 pub(crate) fn tiles_near(
@@ -948,6 +1043,7 @@ fn response_rgb<'a>(
     frame: &'a RgbImage,
     background: &'a RgbImage,
     dark: &'a DarkCells,
+    local: bool,
 ) -> impl FnMut(usize, usize, &mut [f32], &mut [u8]) + 'a {
     let width = frame.width() as usize;
     let (fr, bg) = (frame.as_raw(), background.as_raw());
@@ -983,7 +1079,14 @@ fn response_rgb<'a>(
                     f[1].saturating_add(lift[1]).saturating_sub(b[1]),
                     f[2].saturating_add(lift[2]).saturating_sub(b[2]),
                 );
-                let (r, other_laser) = lut.response(laser, dr, dg, db);
+                let (r, other_laser) = if local {
+                    lut.response_local(laser, [dr, dg, db], f)
+                } else {
+                    // Against a laser-off frame the difference is the laser's
+                    // light alone, clipped cores included (a wide clipped top is
+                    // centred by the automatic scale).
+                    lut.response(laser, dr, dg, db)
+                };
                 *m = u8::from(other_laser);
                 *o = r as f32;
             }
@@ -994,3 +1097,5 @@ fn response_rgb<'a>(
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_real;

@@ -110,6 +110,7 @@
 
 pub mod motion;
 pub mod random;
+pub mod realism;
 pub mod render;
 pub mod scene;
 
@@ -125,6 +126,7 @@ use crate::pfm::PfmError;
 use crate::ply::{Cloud, PlyError};
 
 pub use motion::{Motion, ProjectorPose};
+pub use realism::{Checker, Realism};
 pub use render::{SimParams, Simulator};
 pub use scene::{Hit, LaserColour, Medium, Scene, SceneSpec};
 

@@ -22,6 +22,7 @@ use nalgebra::{Matrix2, Matrix3x2, Vector3};
 use rayon::prelude::*;
 
 use super::motion::{Motion, ProjectorPose, SplitMix64};
+use super::realism::{self, Realism};
 use super::scene::{camera_from_spec, mix64, Medium, Scene, SceneSpec};
 use super::{FrameTruth, SimError};
 use crate::camera::Camera;
@@ -36,6 +37,9 @@ pub struct SimParams {
     pub noise_sigma: f64,
     /// Pass every image through a JPEG encoder of this quality (1-100).
     pub jpeg_quality: Option<u8>,
+    /// Effects of real frames (lit rooms, clipping, chroma subsampling, ...); none by
+    /// default.
+    pub realism: Realism,
 }
 
 impl Default for SimParams {
@@ -44,6 +48,7 @@ impl Default for SimParams {
             seed: 1,
             noise_sigma: 2.0,
             jpeg_quality: None,
+            realism: Realism::none(),
         }
     }
 }
@@ -156,6 +161,8 @@ pub struct Simulator {
     reference_distance: f64,
     water: Option<Water>,
     gauss: Vec<f32>,
+    /// Blooming halo ([`Realism::bloom`]): share of the peak and variance, px².
+    bloom: (f64, f64),
 }
 
 const GAUSS_BITS: u32 = 12;
@@ -209,9 +216,11 @@ impl Simulator {
             reference_distance: distance,
             water,
             gauss: gaussian_table(),
+            bloom: params.realism.bloom.map_or((0.0, 0.0), |(a, s)| (a, s * s)),
             camera,
         };
         sim.cache_view();
+        sim.apply_realism();
         Ok(sim)
     }
 
@@ -256,6 +265,36 @@ impl Simulator {
             roll_rad: pose.roll_rad,
             fan_dirs: [pose.fan_dirs[0].into(), pose.fan_dirs[1].into()],
         }
+    }
+
+    /// Signed distance (px, along the image normal of the curve) of the image point
+    /// `(x, y)` from laser `k`'s plane curve in `pose`, from the surface's tangent plane
+    /// at the nearest pixel; `None` where that pixel sees no surface or the plane runs
+    /// along the ray. The truth a sub-pixel ridge point is scored against.
+    pub fn stripe_distance_px(
+        &self,
+        pose: &ProjectorPose,
+        k: usize,
+        x: f64,
+        y: f64,
+    ) -> Option<f64> {
+        let (w, h) = (self.camera.width as i64, self.camera.height as i64);
+        let (u, v) = (x.round() as i64, y.round() as i64);
+        if u < 0 || v < 0 || u >= w || v >= h {
+            return None;
+        }
+        let px = &self.pixels[(v * w + u) as usize];
+        if !px.hit {
+            return None;
+        }
+        let n = pose.normal(k);
+        let hk = n.dot(&pose.centre);
+        let d = n.dot(&V3::from(px.p)) - hk;
+        let j = &px.j;
+        let gu = n.x * j[0] as f64 + n.y * j[1] as f64 + n.z * j[2] as f64;
+        let gv = n.x * j[3] as f64 + n.y * j[4] as f64 + n.z * j[5] as f64;
+        let g = gu.hypot(gv);
+        (g > 0.0).then(|| (d + gu * (x - u as f64) + gv * (y - v as f64)) / g)
     }
 
     /// Per-pixel Z (camera coordinates), NaN where the ray leaves the scene; row-major.
@@ -305,7 +344,7 @@ impl Simulator {
             centre: pose.centre,
             axis: pose.axis,
             fan_dir: pose.fan_dirs[k],
-            colour: self.colours[k].map(|c| c * self.power),
+            colour: self.laser_colour(k),
             reach: match self.water {
                 Some(_) => self.sheet_reach(&pose, k),
                 None => Vec::new(),
@@ -319,6 +358,36 @@ impl Simulator {
             axis: pose.axis.into(),
             roll_rad: pose.roll_rad,
             fan_dirs: [pose.fan_dirs[0].into(), pose.fan_dirs[1].into()],
+        }
+    }
+
+    /// Laser `k`'s light per channel: its colour times the power, with the realistic
+    /// gain, crosstalk and on/off of [`Realism`].
+    fn laser_colour(&self, k: usize) -> [f64; 3] {
+        let r = &self.params.realism;
+        if !r.laser_on(k) {
+            return [0.0; 3];
+        }
+        let c = self.colours[k];
+        let main = c.iter().copied().fold(0.0, f64::max);
+        c.map(|v| v.max(r.crosstalk * main) * self.power * r.gain())
+    }
+
+    /// Draws the realistic decorations of the view into its ambient image.
+    fn apply_realism(&mut self) {
+        let r = &self.params.realism;
+        if r.checker.is_none()
+            && r.specular_spots == 0
+            && r.bright_lines == 0
+            && r.coloured_patch.is_none()
+        {
+            return;
+        }
+        let size = (self.camera.width as usize, self.camera.height as usize);
+        let mut ambient: Vec<[f32; 3]> = self.hot.iter().map(|h| h.ambient).collect();
+        realism::decorate_ambient(r, self.params.seed, size, &mut ambient);
+        for (h, a) in self.hot.iter_mut().zip(ambient) {
+            h.ambient = a;
         }
     }
 
@@ -356,6 +425,13 @@ impl Simulator {
                 .for_each(|(y, row)| self.render_row(y, row, None, lasers, frame_key)),
         }
         debug_assert_eq!(buf.len(), 3 * w * h);
+        let r = &self.params.realism;
+        if r.moving_object {
+            realism::draw_moving_object(self.params.seed, key, buf, (w, h));
+        }
+        if r.chroma_420 {
+            realism::subsample_chroma(buf, (w, h));
+        }
         if let Some(q) = self.params.jpeg_quality {
             jpeg_round_trip(img, q);
         }
@@ -420,7 +496,10 @@ impl Simulator {
         let halo2 = self.water.as_ref().map_or(0.0, |w| w.halo2);
         // The sharp stripe is cut at 4σ, the faint forward-scatter halo at 3σ. This first
         // test uses the single-precision copy, with a margin for its rounding.
-        let window2 = 16.0 * self.beam2 + hot.jf2 as f64 * (16.0 * self.psf2 + 9.0 * halo2);
+        let (bloom, bloom2) = self.bloom;
+        let window2 = 16.0 * self.beam2
+            + hot.jf2 as f64
+                * (16.0 * self.psf2 + 9.0 * halo2.max(bloom2 * f64::from(u8::from(bloom > 0.0))));
         let d_approx =
             l.n.x * hot.p[0] as f64 + l.n.y * hot.p[1] as f64 + l.n.z * hot.p[2] as f64 - l.h;
         let beyond = d_approx.abs() - 1e-6 * hot.range as f64;
@@ -442,7 +521,9 @@ impl Simulator {
         let e = d2 / (2.0 * s2);
         let s2h = s2 + g2 * halo2;
         let eh = d2 / (2.0 * s2h);
-        if e > 8.0 && (halo2 == 0.0 || eh > 4.5) {
+        let s2b = s2 + g2 * bloom2;
+        let eb = d2 / (2.0 * s2b);
+        if e > 8.0 && (halo2 == 0.0 || eh > 4.5) && (bloom == 0.0 || eb > 4.5) {
             return 0.0;
         }
         // Inside the fan and in front of the projector.
@@ -477,6 +558,9 @@ impl Simulator {
             profile = (1.0 - f) * profile + f * (s2 / s2h).sqrt() * (-eh).exp();
             peak_profile = (1.0 - f) + f * (s2 / s2h).sqrt();
             atten = water.transmission(path);
+        }
+        if bloom > 0.0 {
+            profile += bloom * (-eb).exp();
         }
         let mut peak: f64 = 0.0;
         for c in 0..3 {

@@ -50,6 +50,7 @@ fn quiet() -> SimParams {
         seed: 7,
         noise_sigma: 0.0,
         jpeg_quality: None,
+        realism: crate::simulate::Realism::none(),
     }
 }
 

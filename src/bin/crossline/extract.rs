@@ -11,8 +11,9 @@ use image::RgbImage;
 
 /// Extract the laser curves of one frame.
 ///
-/// The background (a laser-off frame) is subtracted first; without one, the frame itself
-/// is the difference and ambient texture of a laser's colour may become curves.
+/// The background (a laser-off frame) is subtracted first; without one, each frame is
+/// measured against its own local background (a robust estimate wider than the
+/// stripe), and only what a laser's own channel has beyond the others counts.
 #[derive(clap::Args)]
 pub struct Args {
     /// The frame (PNG or JPEG).
@@ -33,6 +34,9 @@ pub struct Args {
     /// Where to write an overlay: the frame darkened, curves in their laser's colour.
     #[arg(long)]
     overlay: Option<PathBuf>,
+    /// Overlay: the frame as it is on the left, the curves drawn on it on the right.
+    #[arg(long)]
+    side_by_side: bool,
     /// Laser colours, overriding the config: red-green, blue-green, red, green or blue.
     #[arg(long)]
     lasers: Option<String>,
@@ -63,7 +67,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let frame = load_rgb(&args.input)?;
     let background = match &args.background {
         Some(path) => Background::from_image(load_rgb(path)?),
-        None => Background::black(frame.width(), frame.height()),
+        None => Background::local(frame.width(), frame.height()),
     };
     let camera = match &args.camera {
         Some(path) => {
@@ -89,14 +93,21 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .try_extract(&frame, &background)
         .with_context(|| format!("extracting {}", args.input.display()))?;
     let points: usize = curves.iter().map(|c| c.points_px.len()).sum();
+    let stats = extractor.stats();
     tracing::info!(
-        "{}: {} curves, {} points",
+        "{}: {} curves, {} points ({} on a clipped channel){}",
         args.input.display(),
         curves.len(),
-        points
+        points,
+        stats.clipped_points,
+        if background.is_local() {
+            ", against the frame's local background"
+        } else {
+            ""
+        }
     );
     if let Some(path) = &args.overlay {
-        let overlay = draw_overlay(&frame, &curves, &params.lasers);
+        let overlay = draw_overlay(&frame, &curves, &params.lasers, args.side_by_side);
         overlay
             .save(path)
             .with_context(|| format!("writing overlay {}", path.display()))?;
@@ -137,8 +148,20 @@ fn parse_params(text: &str) -> anyhow::Result<ExtractParams> {
     Ok(file.extract)
 }
 
-/// The frame at 40 % brightness with each curve drawn in its laser's display colour.
-fn draw_overlay(frame: &RgbImage, curves: &[Curve], lasers: &[LaserColour]) -> RgbImage {
+/// Half width (px) of the overlay's curves: at least 1 (lines 3 px wide, visible at
+/// full size), and a pixel more per 1000 px of the frame's larger side.
+fn overlay_half_width(frame: &RgbImage) -> i64 {
+    1 + frame.width().max(frame.height()) as i64 / 1000
+}
+
+/// The frame at 40 % brightness with each curve drawn in its laser's display colour,
+/// [`overlay_half_width`] thick; with `side_by_side`, the frame as it is to its left.
+fn draw_overlay(
+    frame: &RgbImage,
+    curves: &[Curve],
+    lasers: &[LaserColour],
+    side_by_side: bool,
+) -> RgbImage {
     let mut out = frame.clone();
     for p in out.pixels_mut() {
         for c in p.0.iter_mut() {
@@ -146,6 +169,7 @@ fn draw_overlay(frame: &RgbImage, curves: &[Curve], lasers: &[LaserColour]) -> R
         }
     }
     let (w, h) = (out.width() as i64, out.height() as i64);
+    let r = overlay_half_width(frame);
     for curve in curves {
         let colour = lasers
             .get(curve.laser as usize)
@@ -157,13 +181,23 @@ fn draw_overlay(frame: &RgbImage, curves: &[Curve], lasers: &[LaserColour]) -> R
                 let t = i as f32 / steps as f32;
                 let x = (a[0] + t * (b[0] - a[0])).round() as i64;
                 let y = (a[1] + t * (b[1] - a[1])).round() as i64;
-                if (0..w).contains(&x) && (0..h).contains(&y) {
-                    out.put_pixel(x as u32, y as u32, image::Rgb(colour));
+                for yy in y - r..=y + r {
+                    for xx in x - r..=x + r {
+                        if (0..w).contains(&xx) && (0..h).contains(&yy) {
+                            out.put_pixel(xx as u32, yy as u32, image::Rgb(colour));
+                        }
+                    }
                 }
             }
         }
     }
-    out
+    if !side_by_side {
+        return out;
+    }
+    let mut both = RgbImage::new(2 * frame.width(), frame.height());
+    image::imageops::replace(&mut both, frame, 0, 0);
+    image::imageops::replace(&mut both, &out, frame.width() as i64, 0);
+    both
 }
 
 #[cfg(test)]
@@ -191,6 +225,7 @@ mod tests {
             config: None,
             out: dir.path().join("curves.json"),
             overlay: None,
+            side_by_side: false,
             lasers: None,
             line_width_px: None,
         };
@@ -225,6 +260,7 @@ mod tests {
             config: None,
             out: dir.path().join("curves.json"),
             overlay: Some(dir.path().join("overlay.png")),
+            side_by_side: false,
             lasers: Some("red".into()),
             line_width_px: None,
         };
@@ -244,6 +280,40 @@ mod tests {
             .get_pixel(p[0].round() as u32, p[1].round() as u32)
             .0;
         assert_eq!(px, LaserColour::red().display_rgb);
+        // Drawn thick enough to see: the pixels a line width beside it too.
+        let r = overlay_half_width(&overlay) as u32;
+        assert!(r >= 1);
+        let (x, y) = (p[0].round() as u32, p[1].round() as u32);
+        let beside = [
+            (x + r, y),
+            (x.saturating_sub(r), y),
+            (x, y + r),
+            (x, y.saturating_sub(r)),
+        ];
+        assert!(
+            beside
+                .iter()
+                .all(|&(u, v)| overlay.get_pixel(u, v).0 == LaserColour::red().display_rgb),
+            "curve drawn one pixel thin"
+        );
+    }
+
+    #[test]
+    fn side_by_side_overlay_holds_the_frame_and_the_curves() {
+        let frame = RgbImage::from_pixel(40, 30, image::Rgb([100, 100, 100]));
+        let curve = Curve {
+            laser: 0,
+            points_px: vec![[5.0, 15.0], [35.0, 15.0]],
+            points: vec![[0.0, 0.0]; 2],
+            strength: vec![50.0; 2],
+            polyline: Vec::new(),
+        };
+        let out = draw_overlay(&frame, &[curve], &[LaserColour::red()], true);
+        assert_eq!(out.dimensions(), (80, 30));
+        assert_eq!(out.get_pixel(20, 15).0, [100, 100, 100]);
+        assert_eq!(out.get_pixel(60, 14).0, LaserColour::red().display_rgb);
+        assert_eq!(out.get_pixel(60, 16).0, LaserColour::red().display_rgb);
+        assert_eq!(out.get_pixel(60, 5).0, [40, 40, 40]);
     }
 
     #[test]

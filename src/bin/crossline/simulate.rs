@@ -190,6 +190,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             FrameFormat::Png => args.jpeg_quality,
             FrameFormat::Jpeg { .. } | FrameFormat::Dump { .. } => None,
         },
+        realism: drawn
+            .as_ref()
+            .map_or_else(crossline::simulate::Realism::none, |d| {
+                d.params.realism.clone()
+            }),
     };
     if let Some(d) = &mut drawn {
         d.spec = spec.clone();

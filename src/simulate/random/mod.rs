@@ -12,11 +12,13 @@
 mod describe;
 mod layout;
 mod parts;
+mod real;
 mod room;
 #[cfg(test)]
 mod tests;
 
 pub use describe::Description;
+pub use real::draw_realistic;
 
 use std::fmt;
 
@@ -203,6 +205,7 @@ pub fn draw(seed: u64, frames: usize) -> DrawnScan {
             seed,
             noise_sigma,
             jpeg_quality: None,
+            realism: super::Realism::none(),
         },
         format,
         frames,

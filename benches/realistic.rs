@@ -1,0 +1,116 @@
+//! Extraction on simulated realistic frames (`simulate::random::draw_realistic`: lit
+//! rooms with white and grey structures, clipping, halos, 4:2:0 chroma, moving
+//! objects), scored against the simulator's truth with and without a laser-off frame.
+//!
+//! `cargo bench --bench realistic` prints, per background policy, the recall of lit
+//! pixels within 1 px, the median and p90 sub-pixel error, the share of points more
+//! than 2 px from any stripe, and the time per frame on one core (scaled to 1080p by
+//! pixel count). `REALISTIC_SCANS` (default 12) and `REALISTIC_FRAMES` (default 3)
+//! set how many scans are drawn (seeds 1..; under water skipped) and frames of each.
+//! The policies: `laser-off` (the simulator's background), `local` (none given: the
+//! extractor's local background) and `black` (none given, as before the local one).
+
+use std::time::Instant;
+
+use crossline::extract::score::Score;
+use crossline::extract::{Background, ExtractParams, Extractor, LaserColour};
+use crossline::simulate::random::draw_realistic;
+use crossline::simulate::{FrameFormat, Medium, Simulator};
+
+fn env_usize(key: &str, default: usize) -> usize {
+    std::env::var(key)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+fn main() {
+    // One core: the time per frame is per core.
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build_global()
+        .ok();
+    let scans = env_usize("REALISTIC_SCANS", 12);
+    let frames = env_usize("REALISTIC_FRAMES", 3);
+    let policies = ["laser-off", "local", "black"];
+    let mut scores: Vec<Score> = policies.iter().map(|_| Score::default()).collect();
+    let mut millis = vec![0.0f64; policies.len()];
+    let mut megapixels = 0.0;
+    let mut done = 0;
+    let mut seed = 0;
+    while done < scans {
+        seed += 1;
+        let mut drawn = draw_realistic(seed, 40);
+        if let FrameFormat::Jpeg { quality } = drawn.format {
+            drawn.params.jpeg_quality = Some(quality);
+        }
+        if drawn.spec.medium == Medium::Water {
+            continue;
+        }
+        done += 1;
+        let Ok(sim) = Simulator::new(&drawn.spec, &drawn.params) else {
+            continue;
+        };
+        let cam = sim.camera().clone();
+        let params = ExtractParams {
+            lasers: drawn
+                .spec
+                .projector
+                .colours
+                .iter()
+                .filter_map(|c| LaserColour::preset(c.name()).map(|mut v| v.remove(0)))
+                .collect(),
+            ..ExtractParams::default()
+        };
+        let Ok(mut extractor) = Extractor::new(&params, &cam) else {
+            continue;
+        };
+        let off = Background::from_image(sim.background());
+        let local = Background::local(cam.width, cam.height);
+        let black = Background::black(cam.width, cam.height);
+        let min_contrast = (5.0 * drawn.params.noise_sigma).round() as u8;
+        for f in 0..frames {
+            let index = 5 + f * 13;
+            let mut img = image::RgbImage::new(cam.width, cam.height);
+            let mut lit = vec![0u8; (cam.width * cam.height) as usize];
+            sim.render_frame_into(index, &mut img, Some(&mut lit));
+            megapixels += (cam.width * cam.height) as f64 / 1e6;
+            for (k, bg) in [&off, &local, &black].into_iter().enumerate() {
+                let t = Instant::now();
+                let curves = extractor.extract(&img, bg);
+                millis[k] += t.elapsed().as_secs_f64() * 1e3;
+                if std::env::var_os("REALISTIC_VERBOSE").is_some() {
+                    let mut one = Score::default();
+                    one.add(&sim, index, &lit, min_contrast, &curves);
+                    eprintln!(
+                        "  frame {index} {}: recall {:.3} stray {}/{} {:?}",
+                        policies[k],
+                        one.recall(),
+                        one.stray,
+                        one.points,
+                        extractor.stats()
+                    );
+                }
+                scores[k].add(&sim, index, &lit, min_contrast, &curves);
+            }
+        }
+        eprintln!("scan {seed}: {}", drawn.summary);
+    }
+    let per_1080p = 1920.0 * 1080.0 / 1e6;
+    println!("{done} realistic scans x {frames} frames (air), one core");
+    println!(
+        "| background | recall ≤1 px | sub-px median / p90 | stray > 2 px | ms per 1080p frame |"
+    );
+    println!("|---|---|---|---|---|");
+    for (k, name) in policies.iter().enumerate() {
+        let s = &scores[k];
+        println!(
+            "| {name} | {:.1} % | {:.4} / {:.3} px | {:.2} % | {:.1} |",
+            100.0 * s.recall(),
+            s.error_quantile(0.5),
+            s.error_quantile(0.9),
+            100.0 * s.stray_share(),
+            millis[k] / megapixels * per_1080p,
+        );
+    }
+}

@@ -1,0 +1,146 @@
+//! Checks on a frame's curves once they are linked: the share of points measured where
+//! the laser's own channel is clipped (and the advice when it is large), a curve of one
+//! laser that only repeats another laser's (one overexposed laser seen as two), and
+//! whether both lasers of a two-laser setting are in the frames at all.
+//!
+//! Owns the counters across frames and the one-time warnings; changes no point.
+
+use image::RgbImage;
+
+use super::{ColourLut, Curve, LaserColour};
+
+/// A share of clipped points above this is worth telling the user.
+pub const CLIPPED_WARN_SHARE: f64 = 0.2;
+/// Points of a curve within this distance (px) of another laser's curve repeat it.
+const REPEAT_PX: f32 = 2.0;
+/// A curve whose points repeat another laser's curve for at least this share is the
+/// other laser seen a second time.
+const REPEAT_SHARE: f64 = 0.8;
+/// Frames after which a laser never seen, while the other was in most, is absent.
+const PRESENCE_FRAMES: usize = 10;
+
+/// Points on clipped own channels, of all points of `curves` (lasers as in `lut`).
+pub(crate) fn clipped_points(lut: &ColourLut, frame: &RgbImage, curves: &[Curve]) -> usize {
+    let (w, h) = (frame.width() as usize, frame.height() as usize);
+    let raw = frame.as_raw();
+    curves
+        .iter()
+        .map(|c| {
+            c.points_px
+                .iter()
+                .filter(|p| {
+                    let (x, y) = (p[0].round() as usize, p[1].round() as usize);
+                    x < w && y < h && lut.own_clipped(c.laser, &raw[3 * (y * w + x)..])
+                })
+                .count()
+        })
+        .sum()
+}
+
+/// Drops the curves of one laser that lie along another laser's curves (an
+/// overexposed stripe's core is bright in every channel, and a two-laser setting
+/// would read it once per laser); returns how many points were dropped. At the cross
+/// centre the two stripes meet over a few pixels only, well under [`REPEAT_SHARE`].
+pub(crate) fn drop_repeats(
+    curves: &mut Vec<Curve>,
+    (w, h): (usize, usize),
+    scratch: &mut Vec<u8>,
+) -> usize {
+    scratch.clear();
+    scratch.resize(w * h, 0);
+    let r = REPEAT_PX.ceil() as isize;
+    for c in curves.iter() {
+        let bit = 1u8 << c.laser.min(7);
+        for p in &c.points_px {
+            let (x, y) = (p[0].round() as isize, p[1].round() as isize);
+            for yy in (y - r).max(0)..(y + r + 1).min(h as isize) {
+                for xx in (x - r).max(0)..(x + r + 1).min(w as isize) {
+                    scratch[yy as usize * w + xx as usize] |= bit;
+                }
+            }
+        }
+    }
+    // The weaker of two repeating curves goes: strength summed over its points.
+    let total = |c: &Curve| c.strength.iter().map(|&s| s as f64).sum::<f64>();
+    let mut dropped = 0;
+    let mut keep = vec![true; curves.len()];
+    for (i, c) in curves.iter().enumerate() {
+        let others = !(1u8 << c.laser.min(7));
+        let near = c
+            .points_px
+            .iter()
+            .filter(|p| {
+                let (x, y) = (p[0].round() as usize, p[1].round() as usize);
+                x < w && y < h && scratch[y * w + x] & others != 0
+            })
+            .count();
+        if (near as f64) < REPEAT_SHARE * c.points_px.len() as f64 {
+            continue;
+        }
+        // Stronger than everything of the other lasers it lies along: keep it.
+        let rival = curves
+            .iter()
+            .filter(|o| o.laser != c.laser)
+            .map(total)
+            .fold(0.0, f64::max);
+        if total(c) < rival {
+            keep[i] = false;
+            dropped += c.points_px.len();
+        }
+    }
+    let mut k = keep.iter();
+    curves.retain(|_| *k.next().unwrap_or(&true));
+    dropped
+}
+
+/// Counters across frames for the one-time warnings.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Presence {
+    frames: usize,
+    frames_with: [usize; 2],
+    told_absent: bool,
+    told_clipped: bool,
+}
+
+impl Presence {
+    /// Counts a frame's `curves`; says once when one of two lasers is absent from the
+    /// frames while the other is in most of them, and once when a frame's share of
+    /// clipped points exceeds [`CLIPPED_WARN_SHARE`].
+    pub fn observe(&mut self, lasers: &[LaserColour], curves: &[Curve], clipped: usize) {
+        self.frames += 1;
+        let points: usize = curves.iter().map(|c| c.points_px.len()).sum();
+        for k in 0..lasers.len().min(2) {
+            if curves.iter().any(|c| c.laser as usize == k) {
+                self.frames_with[k] += 1;
+            }
+        }
+        if !self.told_clipped && points >= 50 && clipped as f64 > CLIPPED_WARN_SHARE * points as f64
+        {
+            self.told_clipped = true;
+            tracing::warn!(
+                "stripe saturated over {:.0} % of its length: lower the exposure or the laser power",
+                100.0 * clipped as f64 / points as f64
+            );
+        }
+        if lasers.len() == 2 && !self.told_absent && self.frames >= PRESENCE_FRAMES {
+            for k in 0..2 {
+                if self.frames_with[k] == 0 && 2 * self.frames_with[1 - k] > self.frames {
+                    self.told_absent = true;
+                    tracing::warn!(
+                        "only the {} laser is in the frames ({} of {}), no {} one: is it on? (one laser: set lasers to {:?})",
+                        lasers[1 - k].name,
+                        self.frames_with[1 - k],
+                        self.frames,
+                        lasers[k].name,
+                        lasers[1 - k].name
+                    );
+                }
+            }
+        }
+    }
+
+    /// Whether the absence of one laser has been told.
+    pub fn absent_told(&self) -> bool {
+        self.told_absent
+    }
+}

@@ -1,0 +1,297 @@
+//! The local background: what a frame would show without its stripes, estimated from
+//! the frame alone, for when no laser-off frame exists (one photo, the first frames of
+//! a live scan, a scene that changed during the sweep).
+//!
+//! Per channel, a morphological opening (a minimum, then a maximum, over a square
+//! window `2r + 1` px wide, each separable and by van Herk / Gil–Werman in three
+//! comparisons per pixel whatever `r`): anything bright and narrower than the window
+//! (a stripe) is taken out, while surfaces, their shading and the steps between them
+//! (a checkerboard's squares, a lit wall's edge) are kept as they are. The opening of a
+//! noisy surface lies below its mean by the noise's extreme over the window; that bias
+//! is measured on the frame (the median of the frame over the opening, per channel)
+//! and added back, so the excess of a bare surface is centred on zero, as it is over a
+//! laser-off frame.
+//!
+//! Owns its scratch buffers; knows nothing of colours or lasers.
+
+use image::RgbImage;
+
+/// Half width (px) of the opening's window by default: a window of 17 px takes out
+/// stripes up to ~8 px wide (FWHM) entirely and leaves of a wider one the cap above
+/// its value 8 px off centre, still centred on it, while keeping surfaces, squares and
+/// objects larger than the window as they are (a wider window takes a 50 px square of
+/// a checkerboard for a stripe).
+pub const DEFAULT_RADIUS_PX: usize = 8;
+
+/// The scratch of [`LocalBackground::estimate_into`].
+#[derive(Clone, Debug, Default)]
+pub struct LocalBackground {
+    radius: usize,
+    a: Vec<u8>,
+    b: Vec<u8>,
+    /// Prefix and suffix extremes of the van Herk passes.
+    g: Vec<u8>,
+    h: Vec<u8>,
+}
+
+impl LocalBackground {
+    /// An estimator with an opening of half width `radius_px` (at least 1).
+    pub fn new(radius_px: usize) -> Self {
+        Self {
+            radius: radius_px.max(1),
+            ..Self::default()
+        }
+    }
+
+    pub fn radius_px(&self) -> usize {
+        self.radius
+    }
+
+    /// Writes the local background of `frame` into `out` (resized if needed).
+    pub fn estimate_into(&mut self, frame: &RgbImage, out: &mut RgbImage) {
+        let (w, h) = (frame.width() as usize, frame.height() as usize);
+        if out.dimensions() != frame.dimensions() {
+            *out = RgbImage::new(frame.width(), frame.height());
+        }
+        let n = 3 * w * h;
+        for v in [&mut self.a, &mut self.b, &mut self.g, &mut self.h] {
+            v.resize(n, 0);
+        }
+        let r = self.radius;
+        let src: &[u8] = frame.as_raw();
+        // Erosion: rows into `a`, columns into `b`; dilation: rows into `a`, columns
+        // into the output.
+        rows_pass(
+            src,
+            &mut self.a,
+            (w, h),
+            r,
+            &mut self.g,
+            &mut self.h,
+            u8::min,
+        );
+        cols_pass(
+            &self.a,
+            &mut self.b,
+            (w, h),
+            r,
+            &mut self.g,
+            &mut self.h,
+            u8::min,
+        );
+        rows_pass(
+            &self.b,
+            &mut self.a,
+            (w, h),
+            r,
+            &mut self.g,
+            &mut self.h,
+            u8::max,
+        );
+        let dst: &mut [u8] = out;
+        cols_pass(&self.a, dst, (w, h), r, &mut self.g, &mut self.h, u8::max);
+        let bias = noise_bias(src, dst);
+        for px in dst.chunks_exact_mut(3) {
+            for (v, b) in px.iter_mut().zip(bias) {
+                *v = v.saturating_add(b);
+            }
+        }
+    }
+}
+
+/// Per channel, the median of `frame − opening` over a sparse sample of pixels: how far
+/// the opening lies below a bare surface's mean (the noise's extreme over the window).
+fn noise_bias(frame: &[u8], opening: &[u8]) -> [u8; 3] {
+    let mut hist = [[0u32; 256]; 3];
+    let mut count = 0u32;
+    // Every 7th pixel: 7 is prime to 3 and to the usual widths, so rows and channels
+    // mix.
+    for (f, o) in frame
+        .chunks_exact(3)
+        .zip(opening.chunks_exact(3))
+        .step_by(7)
+    {
+        for c in 0..3 {
+            hist[c][f[c].saturating_sub(o[c]) as usize] += 1;
+        }
+        count += 1;
+    }
+    hist.map(|hc| {
+        let mut acc = 0;
+        hc.iter()
+            .position(|&k| {
+                acc += k;
+                2 * acc > count
+            })
+            .unwrap_or(0) as u8
+    })
+}
+
+/// The running extreme (`op`, the window clipped at the borders) over `2r + 1` samples
+/// along each row of each channel: van Herk / Gil–Werman, with blocks of `2r + 1`.
+#[allow(clippy::too_many_arguments)]
+fn rows_pass(
+    src: &[u8],
+    dst: &mut [u8],
+    (w, h): (usize, usize),
+    r: usize,
+    g: &mut [u8],
+    hs: &mut [u8],
+    op: fn(u8, u8) -> u8,
+) {
+    let k = 2 * r + 1;
+    let stride = 3 * w;
+    for y in 0..h {
+        let row = &src[y * stride..(y + 1) * stride];
+        let out = &mut dst[y * stride..(y + 1) * stride];
+        let (g, hs) = (&mut g[..stride], &mut hs[..stride]);
+        for c in 0..3 {
+            // Prefix extremes from each block start, suffix extremes to each block end.
+            for x in 0..w {
+                let v = row[3 * x + c];
+                g[3 * x + c] = if x % k == 0 {
+                    v
+                } else {
+                    op(g[3 * (x - 1) + c], v)
+                };
+            }
+            for x in (0..w).rev() {
+                let v = row[3 * x + c];
+                hs[3 * x + c] = if x % k == k - 1 || x == w - 1 {
+                    v
+                } else {
+                    op(hs[3 * (x + 1) + c], v)
+                };
+            }
+            for x in 0..w {
+                out[3 * x + c] = if x < r {
+                    // The window starts in block 0 and ends in it (x + r < 2r + 1).
+                    g[3 * (x + r).min(w - 1) + c]
+                } else if x + r < w {
+                    op(hs[3 * (x - r) + c], g[3 * (x + r) + c])
+                } else if (x - r) / k == (w - 1) / k {
+                    hs[3 * (x - r) + c]
+                } else {
+                    op(hs[3 * (x - r) + c], g[3 * (w - 1) + c])
+                };
+            }
+        }
+    }
+}
+
+fn row_of(v: &[u8], i: usize, stride: usize) -> &[u8] {
+    &v[i * stride..(i + 1) * stride]
+}
+
+/// As [`rows_pass`] down the columns: whole rows at a time, so the extremes vectorise.
+#[allow(clippy::too_many_arguments)]
+fn cols_pass(
+    src: &[u8],
+    dst: &mut [u8],
+    (w, h): (usize, usize),
+    r: usize,
+    g: &mut [u8],
+    hs: &mut [u8],
+    op: fn(u8, u8) -> u8,
+) {
+    let k = 2 * r + 1;
+    let stride = 3 * w;
+    for y in 0..h {
+        let row = &src[y * stride..(y + 1) * stride];
+        if y % k == 0 {
+            g[y * stride..(y + 1) * stride].copy_from_slice(row);
+        } else {
+            let (before, cur) = g.split_at_mut(y * stride);
+            let prev = &before[(y - 1) * stride..];
+            for ((o, p), v) in cur[..stride].iter_mut().zip(prev).zip(row) {
+                *o = op(*p, *v);
+            }
+        }
+    }
+    for y in (0..h).rev() {
+        let row = &src[y * stride..(y + 1) * stride];
+        if y % k == k - 1 || y == h - 1 {
+            hs[y * stride..(y + 1) * stride].copy_from_slice(row);
+        } else {
+            let (cur, after) = hs.split_at_mut((y + 1) * stride);
+            let next = &after[..stride];
+            for ((o, p), v) in cur[y * stride..].iter_mut().zip(next).zip(row) {
+                *o = op(*p, *v);
+            }
+        }
+    }
+    for y in 0..h {
+        let out = &mut dst[y * stride..(y + 1) * stride];
+        // As in `rows_pass`: a window that starts before the top lies in block 0; one
+        // that ends past the bottom may lie in the last block alone.
+        let (left, right) = if y < r {
+            (None, row_of(g, (y + r).min(h - 1), stride))
+        } else if y + r < h {
+            (Some(row_of(hs, y - r, stride)), row_of(g, y + r, stride))
+        } else if (y - r) / k == (h - 1) / k {
+            (None, row_of(hs, y - r, stride))
+        } else {
+            (Some(row_of(hs, y - r, stride)), row_of(g, h - 1, stride))
+        };
+        match left {
+            Some(left) => {
+                for ((o, a), b) in out.iter_mut().zip(left).zip(right) {
+                    *o = op(*a, *b);
+                }
+            }
+            None => out.copy_from_slice(right),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Brute-force opening of one channel for comparison.
+    fn opening_reference(img: &RgbImage, r: usize) -> RgbImage {
+        let (w, h) = (img.width() as i64, img.height() as i64);
+        let ext = |src: &RgbImage, op: fn(u8, u8) -> u8, init: u8| {
+            RgbImage::from_fn(w as u32, h as u32, |x, y| {
+                let mut v = [init; 3];
+                for yy in (y as i64 - r as i64).max(0)..=(y as i64 + r as i64).min(h - 1) {
+                    for xx in (x as i64 - r as i64).max(0)..=(x as i64 + r as i64).min(w - 1) {
+                        let p = src.get_pixel(xx as u32, yy as u32).0;
+                        for c in 0..3 {
+                            v[c] = op(v[c], p[c]);
+                        }
+                    }
+                }
+                image::Rgb(v)
+            })
+        };
+        ext(&ext(img, u8::min, 255), u8::max, 0)
+    }
+
+    #[test]
+    fn opening_matches_brute_force_and_removes_a_stripe() {
+        // Noise-free, so the measured bias is zero and the output is the opening.
+        let img = RgbImage::from_fn(57, 41, |x, y| {
+            let base = if (x / 13 + y / 11) % 2 == 0 { 40 } else { 200 };
+            let stripe = if x == 2 * y / 3 + 5 || x == 2 * y / 3 + 6 {
+                50
+            } else {
+                0
+            };
+            image::Rgb([base + stripe, base, (base / 2) + (x as u8)])
+        });
+        for r in [1, 2, 4] {
+            let mut lb = LocalBackground::new(r);
+            let mut out = RgbImage::new(1, 1);
+            lb.estimate_into(&img, &mut out);
+            let reference = opening_reference(&img, r);
+            let bias = noise_bias(img.as_raw(), reference.as_raw());
+            let expected: Vec<u8> = reference
+                .as_raw()
+                .chunks_exact(3)
+                .flat_map(|p| [0, 1, 2].map(|c| p[c].saturating_add(bias[c])))
+                .collect();
+            assert_eq!(out.as_raw(), &expected, "radius {r}");
+        }
+    }
+}

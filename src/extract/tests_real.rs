@@ -1,0 +1,234 @@
+//! Extraction on real-camera effects (issue 19): no laser-off frame, white and grey
+//! structures, clipped channels, wide stripes, one laser of two, realistic simulated
+//! scans scored against truth.
+
+use super::score::Score;
+use super::*;
+use crate::simulate::random::draw_realistic;
+use crate::simulate::{FrameFormat, Medium, Simulator};
+
+/// Deterministic noise in [-1, 1) (sum of two uniforms, std ~0.41).
+fn noise(i: u64) -> f64 {
+    let mut z = i.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    ((z >> 40) as f64 / (1u64 << 24) as f64) + ((z & 0xFF_FFFF) as f64 / (1u64 << 24) as f64) - 1.0
+}
+
+/// A frame of `surface(x, y)` plus a straight stripe `y = y0 + slope x` of Gaussian std
+/// `s`, `peak` grey levels times `rgb`, noise of std ~`sigma`, clipped to 0-255.
+fn frame(
+    (w, h): (u32, u32),
+    surface: &dyn Fn(f64, f64) -> [f64; 3],
+    stripe: Option<(f64, f64, f64, f64, [f64; 3])>,
+    sigma: f64,
+) -> RgbImage {
+    RgbImage::from_fn(w, h, |x, y| {
+        let (xf, yf) = (x as f64, y as f64);
+        let mut v = surface(xf, yf);
+        if let Some((y0, slope, s, peak, rgb)) = stripe {
+            let d = (yf - y0 - slope * xf) / slope.hypot(1.0);
+            let g = peak * (-0.5 * d * d / (s * s)).exp();
+            for (c, k) in v.iter_mut().zip(rgb) {
+                *c += k * g;
+            }
+        }
+        let i = 3 * (y as u64 * w as u64 + x as u64);
+        image::Rgb([0, 1, 2].map(|c| {
+            (v[c] + sigma / 0.41 * noise(i + c as u64))
+                .round()
+                .clamp(0.0, 255.0) as u8
+        }))
+    })
+}
+
+fn distance_errors(curves: &[Curve], (y0, slope): (f64, f64), margin: f64, w: f64) -> Vec<f64> {
+    curves
+        .iter()
+        .flat_map(|c| c.points_px.iter())
+        .filter(|p| p[0] as f64 > margin && (p[0] as f64) < w - margin)
+        .map(|p| (p[1] as f64 - y0 - slope * p[0] as f64) / slope.hypot(1.0))
+        .collect()
+}
+
+/// A warm-lit checkerboard, bright white squares (tinted as under a lamp, so their
+/// hue is red's), with no laser: no curve without a laser-off frame. Against black
+/// (no background, as before the local one) its squares' edges are curves.
+#[test]
+fn checkerboard_without_laser_gives_no_curve() {
+    let (w, h) = (320u32, 240u32);
+    let board = |x: f64, y: f64| {
+        if ((x / 37.0) as i64 + (y / 37.0) as i64) % 2 == 0 {
+            [250.0, 215.0, 180.0]
+        } else {
+            [40.0, 38.0, 36.0]
+        }
+    };
+    let img = frame((w, h), &board, None, 2.0);
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
+    let black = ex.extract(&img, &Background::black(w, h));
+    let local = ex.extract(&img, &Background::local(w, h));
+    eprintln!(
+        "checkerboard: {} curves against black, {} against the local background",
+        black.len(),
+        local.len()
+    );
+    assert!(
+        !black.is_empty(),
+        "the board should be a trap without the local background"
+    );
+    assert!(
+        local.is_empty(),
+        "{} curves on a board with no laser",
+        local.len()
+    );
+}
+
+/// A red stripe so bright that red clips over ~10 px, its core still in green and
+/// blue (crosstalk) on a grey surface: found within 0.1 px, its clipped share counted.
+#[test]
+fn stripe_clipped_in_its_own_channel_is_found() {
+    let (w, h) = (200u32, 120u32);
+    let surface = |_: f64, _: f64| [70.0, 70.0, 70.0];
+    let (y0, slope) = (55.3, 0.07);
+    let stripe = (y0, slope, 3.0, 2000.0, [1.0, 0.08, 0.06]);
+    let img = frame((w, h), &surface, Some(stripe), 2.0);
+    let bg = frame((w, h), &surface, None, 2.0);
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
+    for background in [Background::from_image(bg), Background::local(w, h)] {
+        let curves = ex.extract(&img, &background);
+        let e = distance_errors(&curves, (y0, slope), 20.0, w as f64);
+        let mean = e.iter().sum::<f64>() / e.len().max(1) as f64;
+        let worst = e.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let stats = ex.stats();
+        eprintln!(
+            "clipped: {} points, mean {mean:.4}, worst {worst:.4}, {stats:?}",
+            e.len()
+        );
+        assert!(e.len() >= 150, "{} points", e.len());
+        assert!(
+            mean.abs() <= 0.1 && worst <= 0.3,
+            "mean {mean} worst {worst}"
+        );
+        assert!(curves.iter().all(|c| c.laser == 0), "seen as green");
+        assert!(stats.clipped_points * 2 > stats.points, "{stats:?}");
+    }
+}
+
+/// A stripe 20 px wide (FWHM) with no width given: one curve across the frame.
+#[test]
+fn wide_stripe_is_one_curve() {
+    let (w, h) = (320u32, 160u32);
+    let surface = |_: f64, _: f64| [30.0, 30.0, 30.0];
+    let s = 20.0 / (8.0 * 2f64.ln()).sqrt();
+    let (y0, slope) = (70.4, -0.1);
+    let img = frame(
+        (w, h),
+        &surface,
+        Some((y0, slope, s, 120.0, [1.0, 0.06, 0.02])),
+        2.0,
+    );
+    let bg = frame((w, h), &surface, None, 2.0);
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
+    for background in [Background::from_image(bg), Background::local(w, h)] {
+        let curves = ex.extract(&img, &background);
+        let lengths: Vec<f64> = curves.iter().map(Curve::length_px).collect();
+        eprintln!("wide stripe: curves {lengths:?}");
+        assert_eq!(curves.len(), 1, "lengths {lengths:?}");
+        assert!(lengths[0] > 0.8 * w as f64, "lengths {lengths:?}");
+        let e = distance_errors(&curves, (y0, slope), 30.0, w as f64);
+        let worst = e.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!(worst <= 0.3, "worst {worst}");
+    }
+}
+
+/// One red laser, overexposed, with the default red/green setting: no green curve
+/// along the red one, and the absence of green told.
+#[test]
+fn one_laser_with_two_expected_is_not_doubled() {
+    let (w, h) = (240u32, 160u32);
+    let surface = |_: f64, _: f64| [60.0, 60.0, 60.0];
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
+    let mut greens = 0;
+    for i in 0..12 {
+        let y0 = 40.0 + 6.3 * i as f64;
+        // Crosstalk so strong that the core is bright green too.
+        let img = frame(
+            (w, h),
+            &surface,
+            Some((y0, 0.05, 2.5, 1500.0, [1.0, 0.35, 0.1])),
+            2.0,
+        );
+        let curves = ex.extract(&img, &Background::local(w, h));
+        assert!(
+            curves.iter().any(|c| c.laser == 0),
+            "frame {i}: red not found"
+        );
+        greens += curves.iter().filter(|c| c.laser == 1).count();
+    }
+    assert_eq!(greens, 0, "green curves invented");
+    assert!(ex.one_laser_absent());
+}
+
+/// Realistic simulated scans (lit rooms, clutter and tables; none under water) with
+/// no laser-off frame: recall of lit pixels within 1 px, points off every stripe. The
+/// bounds guard what the local background gives today (recall ~0.9, stray ~0.05-0.3:
+/// a surface's own texture in a laser's hue still reads as stripe); the issue's aim
+/// is 0.95 and 0.005 (`cargo bench --bench realistic` prints both policies).
+#[test]
+fn realistic_frames_without_background() {
+    let mut score = Score::default();
+    let mut scans = 0;
+    let mut seed = 100;
+    while scans < 2 {
+        seed += 1;
+        let mut drawn = draw_realistic(seed, 40);
+        if drawn.spec.medium == Medium::Water {
+            continue;
+        }
+        scans += 1;
+        if let FrameFormat::Jpeg { quality } = drawn.format {
+            drawn.params.jpeg_quality = Some(quality);
+        }
+        let sim = Simulator::new(&drawn.spec, &drawn.params).expect("sim");
+        let cam = sim.camera().clone();
+        let params = ExtractParams {
+            lasers: drawn
+                .spec
+                .projector
+                .colours
+                .iter()
+                .filter_map(|c| LaserColour::preset(c.name()).map(|mut v| v.remove(0)))
+                .collect(),
+            ..ExtractParams::default()
+        };
+        let mut ex = Extractor::new(&params, &cam).expect("extractor");
+        let local = Background::local(cam.width, cam.height);
+        for index in [9, 22] {
+            let mut img = RgbImage::new(cam.width, cam.height);
+            let mut lit = vec![0u8; (cam.width * cam.height) as usize];
+            sim.render_frame_into(index, &mut img, Some(&mut lit));
+            let curves = ex.extract(&img, &local);
+            score.add(
+                &sim,
+                index,
+                &lit,
+                (5.0 * drawn.params.noise_sigma) as u8,
+                &curves,
+            );
+        }
+    }
+    eprintln!(
+        "realistic, no background: recall {:.3}, median error {:.4} px, stray {:.4}",
+        score.recall(),
+        score.error_quantile(0.5),
+        score.stray_share()
+    );
+    assert!(score.recall() >= 0.9, "recall {}", score.recall());
+    assert!(score.stray_share() <= 0.35, "stray {}", score.stray_share());
+}
