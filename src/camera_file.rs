@@ -103,14 +103,33 @@ pub enum CameraFileError {
         key: String,
         message: String,
     },
+    #[error("{path}: {bytes} bytes is not a camera file (at most {MAX_FILE_BYTES})")]
+    TooLarge { path: PathBuf, bytes: u64 },
 }
+
+/// Largest camera file read (real ones are about a kilobyte): refused before parsing,
+/// so no array in it can grow large.
+pub const MAX_FILE_BYTES: u64 = 256 << 10;
+/// Largest matrix side in a camera file (the projection matrix is 3x4).
+pub const MAX_MATRIX_SIDE: usize = 16;
+/// Focal lengths accepted, in pixels, and relative to the larger image side: a lens
+/// of a focal length outside these is a damaged file, and would make the crossing
+/// index's cells vanishingly small.
+pub const FOCAL_PX: (f64, f64) = (1.0, 1e6);
+pub const FOCAL_PER_SIDE: (f64, f64) = (0.01, 1000.0);
 
 /// Reads a camera from an OpenCV `FileStorage` YAML, a ROS `camera_info` YAML, or a
 /// crossline TOML file with a `[camera]` table (chosen by the `.toml` extension).
 pub fn load(path: &Path) -> Result<Camera, CameraFileError> {
-    let text = std::fs::read_to_string(path).map_err(|source| CameraFileError::Io {
-        path: path.to_path_buf(),
-        source,
+    let text = crate::config::read_capped(path, MAX_FILE_BYTES).map_err(|e| match e {
+        Ok(bytes) => CameraFileError::TooLarge {
+            path: path.to_path_buf(),
+            bytes,
+        },
+        Err(source) => CameraFileError::Io {
+            path: path.to_path_buf(),
+            source,
+        },
     })?;
     if path
         .extension()
@@ -178,7 +197,8 @@ impl CameraTable {
     }
 }
 
-fn parse_toml(text: &str, path: &Path) -> Result<Camera, CameraFileError> {
+/// Parses the text of a crossline TOML camera file; `path` only labels errors.
+pub fn parse_toml(text: &str, path: &Path) -> Result<Camera, CameraFileError> {
     #[derive(serde::Deserialize)]
     struct File {
         camera: Option<CameraTable>,
@@ -191,7 +211,7 @@ fn parse_toml(text: &str, path: &Path) -> Result<Camera, CameraFileError> {
         CameraFileError::Syntax {
             path: path.to_path_buf(),
             line,
-            message: e.message().to_string(),
+            message: crate::truncate_echo(e.message()),
         }
     })?;
     let table = file.camera.ok_or_else(|| CameraFileError::Key {
@@ -208,26 +228,41 @@ fn validate(camera: Camera, path: &Path) -> Result<Camera, CameraFileError> {
         key: key.into(),
         message,
     };
-    if camera.width == 0 || camera.height == 0 {
+    let max_side = crate::capture::dump::MAX_SIDE;
+    if camera.width == 0
+        || camera.height == 0
+        || camera.width > max_side
+        || camera.height > max_side
+    {
         return Err(bad(
             "image_width/image_height",
             format!(
-                "image size must be positive, found {}x{}",
+                "image size must be 1 to {max_side} pixels a side, found {}x{}",
                 camera.width, camera.height
             ),
         ));
     }
+    let side = f64::from(camera.width.max(camera.height));
+    let lo = FOCAL_PX.0.max(FOCAL_PER_SIDE.0 * side);
+    let hi = FOCAL_PX.1.min(FOCAL_PER_SIDE.1 * side);
     for (key, value) in [("fx", camera.fx), ("fy", camera.fy)] {
-        if !(value.is_finite() && value > 0.0) {
+        if !(value >= lo && value <= hi) {
             return Err(bad(
                 key,
-                format!("focal length must be positive, found {value}"),
+                format!(
+                    "focal length must be {lo} to {hi} px for a {}x{} image, found {value}",
+                    camera.width, camera.height
+                ),
             ));
         }
     }
+    let reach = 10.0 * side;
     for (key, value) in [("cx", camera.cx), ("cy", camera.cy), ("skew", camera.skew)] {
-        if !value.is_finite() {
-            return Err(bad(key, format!("must be a finite number, found {value}")));
+        if !(value.is_finite() && value.abs() <= reach) {
+            return Err(bad(
+                key,
+                format!("must be a finite number within ±{reach} px, found {value}"),
+            ));
         }
     }
     if camera.distortion.to_vec().iter().any(|c| !c.is_finite()) {
@@ -316,7 +351,10 @@ fn parse_map(
         let Some(colon) = find_key_colon(line.text) else {
             return Err(syntax(
                 line.number,
-                format!("expected `key: value`, found `{}`", line.text),
+                format!(
+                    "expected `key: value`, found `{}`",
+                    crate::truncate_echo(line.text)
+                ),
             ));
         };
         let key = line.text[..colon].trim().trim_matches('"').to_string();
@@ -399,7 +437,13 @@ impl YamlCamera<'_> {
     fn number(&self, node: &Node, key: &str, line: usize) -> Result<f64, CameraFileError> {
         match node {
             Node::Scalar(s) => s.parse::<f64>().map_err(|_| {
-                self.key_error(key, format!("line {line}: expected a number, found `{s}`"))
+                self.key_error(
+                    key,
+                    format!(
+                        "line {line}: expected a number, found `{}`",
+                        crate::truncate_echo(s)
+                    ),
+                )
             }),
             _ => Err(self.key_error(key, format!("line {line}: expected a number"))),
         }
@@ -415,8 +459,15 @@ impl YamlCamera<'_> {
                 self.key_error(&key, format!("line {line}: matrix has no `{name}`"))
             })?;
             let v = self.number(n, &format!("{key}.{name}"), l)?;
-            if v < 1.0 || v.fract() != 0.0 {
-                return Err(self.key_error(&key, format!("`{name}` must be a positive integer")));
+            // Checked as a float: `1e300 as usize` would wrap to usize::MAX.
+            if !(1.0..=MAX_MATRIX_SIDE as f64).contains(&v) || v.fract() != 0.0 {
+                return Err(self.key_error(
+                    &key,
+                    format!(
+                        "line {l}: `{name}` must be an integer from 1 to {MAX_MATRIX_SIDE}, found {}",
+                        if v.abs() < 1e16 { v.to_string() } else { format!("{v:e}") }
+                    ),
+                ));
             }
             Ok(v as usize)
         };
@@ -427,13 +478,26 @@ impl YamlCamera<'_> {
                 format!("line {line}: matrix has no `data: [ ... ]` sequence"),
             ));
         };
+        if items.len() != rows * cols {
+            return Err(self.key_error(
+                &format!("{key}.data"),
+                format!(
+                    "line {data_line}: {rows}x{cols} matrix needs {} values, found {}",
+                    rows * cols,
+                    items.len()
+                ),
+            ));
+        }
         let data = items
             .iter()
             .map(|s| {
                 s.parse::<f64>().map_err(|_| {
                     self.key_error(
                         &format!("{key}.data"),
-                        format!("line {data_line}: expected a number, found `{s}`"),
+                        format!(
+                            "line {data_line}: expected a number, found `{}`",
+                            crate::truncate_echo(s)
+                        ),
                     )
                 })
             })
@@ -686,5 +750,55 @@ avg_reprojection_error: 2.1e-01
         )
         .expect_err("distortion length");
         assert!(err.to_string().contains("camera.distortion"), "{err}");
+    }
+
+    #[test]
+    fn absurd_focal_lengths_and_matrix_sizes_are_refused() {
+        let yaml = to_opencv_yaml(&sample()).replace(&format!("{:?}", sample().fx), "1e300");
+        let err = parse_yaml(&yaml, Path::new("cam.yml")).expect_err("fx 1e300");
+        assert!(err.to_string().contains("`fx`"), "{err}");
+        let toml =
+            "[camera]\nwidth = 640\nheight = 480\nfx = 1e308\nfy = 500.0\ncx = 320.0\ncy = 240.0\n";
+        let err = parse_toml(toml, Path::new("cam.toml")).expect_err("fx 1e308");
+        assert!(err.to_string().contains("focal length must be"), "{err}");
+        let toml = toml.replace("1e308", "0.5");
+        assert!(
+            parse_toml(&toml, Path::new("cam.toml")).is_err(),
+            "fx 0.5 px"
+        );
+        let toml = toml.replace("0.5", "500.0");
+        parse_toml(&toml, Path::new("cam.toml")).expect("a sane camera");
+        // `rows: 1e300` is reported as written, not as a wrapped usize.
+        let yaml = to_opencv_yaml(&sample()).replacen("rows: 3", "rows: 1e300", 1);
+        let err = parse_yaml(&yaml, Path::new("cam.yml")).expect_err("rows");
+        let msg = err.to_string();
+        assert!(msg.contains("found 1e300"), "{msg}");
+        assert!(!msg.contains("18446744073709551615"), "{msg}");
+    }
+
+    #[test]
+    fn a_huge_camera_file_is_refused_before_parsing() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("cam.toml");
+        let mut text = String::from("[camera]\ndistortion = [");
+        while (text.len() as u64) <= MAX_FILE_BYTES {
+            text.push_str("0.0, ");
+        }
+        text.push_str("0.0]\n");
+        std::fs::write(&path, &text).expect("write");
+        let err = load(&path).expect_err("too large");
+        assert!(matches!(err, CameraFileError::TooLarge { .. }), "{err}");
+    }
+
+    #[test]
+    fn a_long_bad_line_is_echoed_shortened() {
+        let line = "x".repeat(20_000);
+        let err = parse_yaml(&format!("image_width: 640\n{line}\n"), Path::new("c.yml"))
+            .expect_err("no colon");
+        assert!(
+            err.to_string().len() < 1000,
+            "{} bytes",
+            err.to_string().len()
+        );
     }
 }

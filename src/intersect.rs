@@ -54,6 +54,9 @@ struct Segment {
 
 /// Cells along the larger image side of [`SegmentIndex::for_image`].
 pub const IMAGE_CELLS: f64 = 48.0;
+/// Most grid cells one segment may cover; longer ones are left out and counted
+/// ([`SegmentIndex::segments_too_long`]). An image is `IMAGE_CELLS²` cells.
+pub const MAX_CELLS_PER_SEGMENT: i64 = 1 << 20;
 
 /// Incremental spatial index over the segments of the curves inserted so far.
 #[derive(Clone, Debug)]
@@ -63,6 +66,7 @@ pub struct SegmentIndex {
     min_sin_angle: f64,
     segments: Vec<Segment>,
     grid: CellMap,
+    segments_too_long: u64,
 }
 
 fn cross2(a: [f64; 2], b: [f64; 2]) -> f64 {
@@ -91,7 +95,13 @@ impl SegmentIndex {
             min_sin_angle,
             segments: Vec::new(),
             grid: CellMap::default(),
+            segments_too_long: 0,
         }
+    }
+
+    /// Segments left out because they covered more than [`MAX_CELLS_PER_SEGMENT`].
+    pub fn segments_too_long(&self) -> u64 {
+        self.segments_too_long
     }
 
     /// An empty index with cells of side `cell` (normalised units; must be positive).
@@ -153,12 +163,22 @@ impl SegmentIndex {
             {
                 continue;
             }
-            new_segments.push(Segment {
+            let seg = Segment {
                 curve: curve_id,
                 p: w[0],
                 r,
                 closed_end: k + 1 == n_seg,
-            });
+            };
+            // A segment over more cells than a whole image has (cells far too small
+            // for it: an absurd focal length) would be walked cell by cell for ever.
+            let (c0, c1) = Self::bbox_cells(cell, &seg);
+            let cells =
+                (i64::from(c1.0) - i64::from(c0.0) + 1) * (i64::from(c1.1) - i64::from(c0.1) + 1);
+            if cells > MAX_CELLS_PER_SEGMENT {
+                self.segments_too_long += 1;
+                continue;
+            }
+            new_segments.push(seg);
         }
         for seg in &new_segments {
             let (c0, c1) = Self::bbox_cells(cell, seg);
@@ -589,5 +609,21 @@ mod tests {
         // Too few points near the crossing.
         let vertical: Vec<[f64; 2]> = (0..3).map(|i| [0.02, i as f64 * 1e-3]).collect();
         assert!(refine_crossing(&line(0.0), &vertical, [0.02, 0.0], 0.006).is_none());
+    }
+
+    #[test]
+    fn an_absurd_focal_length_leaves_segments_out_instead_of_spinning() {
+        // fx = 1e300 makes cells of 1e-299: each segment would cover 2^64 cells.
+        let mut index = SegmentIndex::for_image(1920, 1080, 1e300, 0.1);
+        let a = [[-0.5, 0.0], [0.5, 0.0]];
+        let b = [[0.0, -0.5], [0.0, 0.5]];
+        assert!(index.insert(0, &a).is_empty());
+        assert!(index.insert(1, &b).is_empty());
+        assert_eq!(index.segments_too_long(), 2);
+        // The same curves with a sane focal length cross once, nothing left out.
+        let mut index = SegmentIndex::for_image(1920, 1080, 1400.0, 0.1);
+        assert!(index.insert(0, &a).is_empty());
+        assert_eq!(index.insert(1, &b).len(), 1);
+        assert_eq!(index.segments_too_long(), 0);
     }
 }

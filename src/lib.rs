@@ -48,3 +48,16 @@ pub mod rng;
 pub mod serve;
 pub mod simulate;
 pub mod solve;
+
+/// Longest piece of user input an error message repeats.
+pub const MAX_ECHO_CHARS: usize = 200;
+
+/// `text` as an error message may echo it: at most [`MAX_ECHO_CHARS`] characters, the
+/// rest replaced by a note of its length, so that one bad line of 20 KB does not
+/// become a 20 KB message.
+pub fn truncate_echo(text: &str) -> String {
+    match text.char_indices().nth(MAX_ECHO_CHARS) {
+        None => text.to_string(),
+        Some((cut, _)) => format!("{}… ({} bytes in all)", &text[..cut], text.len()),
+    }
+}

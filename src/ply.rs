@@ -567,9 +567,22 @@ fn read_vertices<R: BufRead>(
             let mut line = String::new();
             for i in 0..n {
                 line.clear();
-                let got = reader.read_line(&mut line).map_err(|source| PlyError::Io {
-                    path: path.to_path_buf(),
-                    source,
+                let got = reader.read_line(&mut line).map_err(|source| {
+                    // Bytes that are not UTF-8 are a damaged file, not a failing disk.
+                    if source.kind() == std::io::ErrorKind::InvalidData {
+                        PlyError::Format {
+                            path: path.to_path_buf(),
+                            message: format!(
+                                "line {}: vertex {i} of {n} is not text (binary data in an ASCII PLY?)",
+                                line_no + 1
+                            ),
+                        }
+                    } else {
+                        PlyError::Io {
+                            path: path.to_path_buf(),
+                            source,
+                        }
+                    }
                 })?;
                 line_no += 1;
                 if got == 0 {
@@ -714,6 +727,17 @@ mod tests {
             Ok(c) => panic!("expected an error, read {} points", c.len()),
             Err(e) => e.to_string(),
         }
+    }
+
+    #[test]
+    fn bytes_that_are_not_text_in_an_ascii_body_are_a_format_error() {
+        let mut bytes = b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\n\
+            property float y\nproperty float z\nend_header\n1 2 3\n"
+            .to_vec();
+        bytes.extend_from_slice(&[0xFF, 0xFE, b' ', b'1', b'\n']);
+        let err = read(&bytes).expect_err("not text");
+        assert!(matches!(err, PlyError::Format { .. }), "{err:?}");
+        assert!(err.to_string().contains("vertex 1 of 2"), "{err}");
     }
 
     #[test]

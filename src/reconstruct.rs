@@ -54,6 +54,10 @@ pub enum ReconstructError {
         #[source]
         source: image::ImageError,
     },
+    #[error("cannot decode frame {path}: {message}")]
+    Damaged { path: PathBuf, message: String },
+    #[error("{path} is named like a frame but is not a readable file: {why}")]
+    NotAFile { path: PathBuf, why: String },
     #[error("frame {path} is {got_w}x{got_h}, but the camera file says {want_w}x{want_h}")]
     Size {
         path: PathBuf,
@@ -92,8 +96,25 @@ pub fn list_frames(dir: &Path) -> Result<Vec<PathBuf>, ReconstructError> {
             .extension()
             .and_then(|e| e.to_str())
             .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "png" | "jpg" | "jpeg"));
-        if is_image && path.is_file() {
-            all.push(path);
+        if !is_image {
+            continue;
+        }
+        // A directory, a dangling link or a link loop named like a frame is refused
+        // rather than skipped unseen: a frame would silently be missing from the scan.
+        match std::fs::metadata(&path) {
+            Ok(m) if m.is_file() => all.push(path),
+            Ok(_) => {
+                return Err(ReconstructError::NotAFile {
+                    path,
+                    why: "it is a directory or a special file".into(),
+                })
+            }
+            Err(e) => {
+                return Err(ReconstructError::NotAFile {
+                    path,
+                    why: e.to_string(),
+                })
+            }
         }
     }
     all.sort();
@@ -197,13 +218,81 @@ fn check_size(img: RgbImage, path: &Path, camera: &Camera) -> Result<RgbImage, R
 }
 
 fn decode(path: &Path, camera: &Camera) -> Result<RgbImage, ReconstructError> {
-    let img = image::open(path)
+    let bytes = std::fs::read(path).map_err(|source| ReconstructError::Decode {
+        path: path.to_path_buf(),
+        source: image::ImageError::IoError(source),
+    })?;
+    let format = image::guess_format(&bytes).map_err(|source| ReconstructError::Decode {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    // The JPEG decoder fills a cut-off scan with grey and says nothing.
+    if format == image::ImageFormat::Jpeg && !crate::capture::dump::jpeg_is_complete(&bytes) {
+        return Err(ReconstructError::Damaged {
+            path: path.to_path_buf(),
+            message: "the JPEG is cut off (no end-of-image marker)".into(),
+        });
+    }
+    let img = image::load_from_memory_with_format(&bytes, format)
         .map_err(|source| ReconstructError::Decode {
             path: path.to_path_buf(),
             source,
         })?
         .into_rgb8();
     check_size(img, path, camera)
+}
+
+impl ReconstructError {
+    /// True for a frame whose bytes could be read but not decoded: such a frame is
+    /// skipped and counted (in `reconstruct` as in `serve`), the rest of the scan
+    /// goes on.
+    pub fn is_undecodable_frame(&self) -> bool {
+        matches!(
+            self,
+            Self::Decode {
+                source: image::ImageError::Decoding(_)
+                    | image::ImageError::Unsupported(_)
+                    | image::ImageError::Limits(_),
+                ..
+            } | Self::Damaged { .. }
+                | Self::Dump(DumpError::Decode { .. })
+        )
+    }
+}
+
+/// Frames skipped because they could not be decoded: counted, the first one warned
+/// about as it happens, the total at the end.
+#[derive(Default)]
+struct Skipped {
+    frames: std::sync::Mutex<Vec<(usize, String)>>,
+}
+
+impl Skipped {
+    /// Passes `result` on, or records an undecodable frame and returns `None`.
+    fn filter<T>(
+        &self,
+        i: usize,
+        result: Result<T, ReconstructError>,
+    ) -> Result<Option<T>, ReconstructError> {
+        match result {
+            Ok(v) => Ok(Some(v)),
+            Err(e) if e.is_undecodable_frame() => {
+                let mut frames = self.frames.lock().unwrap_or_else(|e| e.into_inner());
+                if frames.is_empty() {
+                    tracing::warn!("skipping frame {i}: {e}");
+                } else {
+                    tracing::debug!("skipping frame {i}: {e}");
+                }
+                frames.push((i, e.to_string()));
+                Ok(None)
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    fn count(&self) -> usize {
+        self.frames.lock().unwrap_or_else(|e| e.into_inner()).len()
+    }
 }
 
 /// Callbacks for progress on long stages: `(stage, done, total)`.
@@ -229,6 +318,9 @@ pub fn reconstruct_files(
     progress: &dyn Progress,
 ) -> Result<Reconstruction, ReconstructError> {
     let t = Instant::now();
+    // Undecodable frames among the background's samples are left out of the median;
+    // they are counted once, below, when extraction meets them again.
+    let sampled = Skipped::default();
     let background = match background {
         Some(path) => Background::from_image(decode(path, camera)?),
         None => {
@@ -238,9 +330,9 @@ pub fn reconstruct_files(
                 .collect();
             let images = picks
                 .par_iter()
-                .map(|&i| frames.decode(i, camera))
+                .map(|&i| sampled.filter(i, frames.decode(i, camera)))
                 .collect::<Result<Vec<_>, _>>()?;
-            let refs: Vec<&RgbImage> = images.iter().collect();
+            let refs: Vec<&RgbImage> = images.iter().flatten().collect();
             Background::median_of(&refs)?
         }
     };
@@ -251,6 +343,7 @@ pub fn reconstruct_files(
     // (they own their scratch buffers), which cannot fail any more.
     Extractor::new(&config.extract, camera)?;
     let done = std::sync::atomic::AtomicUsize::new(0);
+    let skipped = Skipped::default();
     let per_frame: Vec<Vec<Curve>> = (0..frames.len())
         .into_par_iter()
         .map_init(
@@ -259,8 +352,10 @@ pub fn reconstruct_files(
                 let Some(extractor) = extractor.as_mut() else {
                     return Err(ReconstructError::Internal("extractor construction failed"));
                 };
-                let img = frames.decode(i, camera)?;
-                let curves = extractor.extract(&img, &background);
+                let curves = match skipped.filter(i, frames.decode(i, camera))? {
+                    Some(img) => extractor.extract(&img, &background),
+                    None => Vec::new(),
+                };
                 let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
                 progress.update("extract", n, frames.len());
                 Ok(curves)
@@ -277,7 +372,84 @@ pub fn reconstruct_files(
         scale,
         Some(background.image()),
     )?;
+    let frames_skipped = skipped.count();
+    if frames_skipped > 0 {
+        tracing::warn!(
+            "{frames_skipped} of {} frames could not be decoded and were skipped",
+            frames.len()
+        );
+    }
+    rec.report.frames_skipped = frames_skipped;
     rec.report.seconds.background_s = background_s;
     rec.report.seconds.extract_s = extract_s;
     Ok(rec)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn camera(width: u32, height: u32) -> Camera {
+        Camera {
+            width,
+            height,
+            fx: 100.0,
+            fy: 100.0,
+            cx: 16.0,
+            cy: 12.0,
+            skew: 0.0,
+            distortion: Default::default(),
+        }
+    }
+
+    #[test]
+    fn a_cut_off_jpeg_frame_is_skipped_and_counted_not_used() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let img = RgbImage::from_fn(32, 24, |x, y| image::Rgb([x as u8 * 8, y as u8 * 8, 50]));
+        let whole = dir.path().join("frame_000000.jpg");
+        img.save(&whole).expect("save");
+        let bytes = std::fs::read(&whole).expect("read");
+        let cut = dir.path().join("frame_000001.jpg");
+        std::fs::write(&cut, &bytes[..bytes.len() / 3]).expect("cut");
+        let cam = camera(32, 24);
+        let frames = FrameSource::Files(list_frames(dir.path()).expect("list"));
+        let skipped = Skipped::default();
+        assert!(skipped
+            .filter(0, frames.decode(0, &cam))
+            .expect("ok")
+            .is_some());
+        let err = frames.decode(1, &cam).expect_err("cut off");
+        assert!(err.is_undecodable_frame(), "{err}");
+        assert!(err.to_string().contains("cut off"), "{err}");
+        // The policy shared with serve: skip, count, go on.
+        assert!(skipped
+            .filter(1, frames.decode(1, &cam))
+            .expect("skipped")
+            .is_none());
+        assert_eq!(skipped.count(), 1);
+        // A wrong camera is not a damaged frame: it stops the run.
+        let wrong = camera(64, 48);
+        let err = skipped
+            .filter(0, frames.decode(0, &wrong))
+            .expect_err("size");
+        assert!(matches!(err, ReconstructError::Size { .. }), "{err}");
+    }
+
+    #[test]
+    fn a_directory_or_a_link_loop_named_like_a_frame_is_an_error() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        RgbImage::new(4, 4)
+            .save(dir.path().join("frame_000000.png"))
+            .expect("save");
+        std::fs::create_dir(dir.path().join("frame_000050.png")).expect("mkdir");
+        let err = list_frames(dir.path()).expect_err("a directory");
+        assert!(err.to_string().contains("frame_000050.png"), "{err}");
+        std::fs::remove_dir(dir.path().join("frame_000050.png")).expect("rmdir");
+        let looped = dir.path().join("frame_000051.png");
+        std::os::unix::fs::symlink(&looped, &looped).expect("symlink");
+        let err = list_frames(dir.path()).expect_err("a link loop");
+        assert!(matches!(err, ReconstructError::NotAFile { .. }), "{err}");
+        std::fs::remove_file(&looped).expect("rm");
+        assert_eq!(list_frames(dir.path()).expect("list").len(), 1);
+    }
 }

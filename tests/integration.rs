@@ -1,6 +1,7 @@
 //! Integration tests: the real `crossline` binary on real files.
 
 mod daemon;
+mod faults;
 mod util;
 
 use std::path::Path;

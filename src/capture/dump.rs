@@ -49,6 +49,11 @@ pub const VERSION: u32 = 1;
 /// Largest payload a record may claim (a 4K RGB frame is 25 MB): a larger length is
 /// taken for corruption rather than allocated.
 pub const MAX_PAYLOAD: u32 = 64 << 20;
+/// Largest image side a header may claim (V4L2 drivers stop well below).
+pub const MAX_SIDE: u32 = 1 << 15;
+/// Largest number of pixels a header may claim (an 8K frame is 33 M): the decoded RGB
+/// image, `3` bytes a pixel, must stay allocatable however the header was damaged.
+pub const MAX_PIXELS: u64 = 1 << 26;
 
 /// The negotiated stream, as recorded in the header.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -110,6 +115,63 @@ pub enum DumpError {
 
 fn fourcc_str(f: [u8; 4]) -> String {
     String::from_utf8_lossy(&f).into_owned()
+}
+
+/// Checks that a header's image size and line length describe a frame that fits in a
+/// record ([`MAX_PAYLOAD`]) and decodes to an image of at most [`MAX_PIXELS`], with
+/// every product computed without overflow; says what is wrong otherwise.
+pub fn check_frame_size(header: &DumpHeader) -> Result<(), String> {
+    let (w, h) = (header.width, header.height);
+    if w == 0 || h == 0 {
+        return Err(format!("image size {w}x{h} is empty"));
+    }
+    if w > MAX_SIDE || h > MAX_SIDE || u64::from(w) * u64::from(h) > MAX_PIXELS {
+        return Err(format!(
+            "image size {w}x{h} is larger than crossline reads (at most {MAX_SIDE} a side, {MAX_PIXELS} pixels)"
+        ));
+    }
+    if let Some(bpp) = packed_bytes_per_pixel(header.fourcc) {
+        let row = u64::from(w) * bpp as u64;
+        let stride = match header.bytes_per_line {
+            0 => row,
+            n => u64::from(n),
+        };
+        if stride < row {
+            return Err(format!(
+                "{stride} bytes per line is less than the {row} of a {w}-pixel {} row",
+                fourcc_str(header.fourcc)
+            ));
+        }
+        let frame = stride * (u64::from(h) - 1) + row;
+        if frame > u64::from(MAX_PAYLOAD) {
+            return Err(format!(
+                "a {w}x{h} {} frame of {stride} bytes per line needs {frame} bytes, more than a record holds ({MAX_PAYLOAD})",
+                fourcc_str(header.fourcc)
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Bytes a pixel of a packed (uncompressed) format; `None` for compressed formats.
+fn packed_bytes_per_pixel(fourcc: [u8; 4]) -> Option<usize> {
+    match &fourcc {
+        b"YUYV" => Some(2),
+        b"RGB3" => Some(3),
+        _ => None,
+    }
+}
+
+/// Capacity a buffer of this stream needs (a ring slot): the packed frame, or for
+/// compressed formats a byte per pixel, which holds any sane MJPEG frame (larger ones
+/// grow the slot). `None` when [`check_frame_size`] refuses the header.
+pub fn frame_capacity(header: &DumpHeader) -> Option<usize> {
+    check_frame_size(header).ok()?;
+    let (w, h) = (header.width as usize, header.height as usize);
+    Some(match packed_bytes_per_pixel(header.fourcc) {
+        Some(bpp) => (header.bytes_per_line as usize).max(bpp * w) * h,
+        None => w * h,
+    })
 }
 
 impl DumpHeader {
@@ -243,88 +305,12 @@ fn read_exact_or_eof(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize
 
 impl DumpReader {
     pub fn open(path: &Path) -> Result<Self, DumpError> {
-        let io = |source| DumpError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let mut file = std::io::BufReader::new(File::open(path).map_err(io)?);
-        let bad = |message: String| DumpError::Header {
-            path: path.to_path_buf(),
-            message,
-        };
-        let mut fixed = [0u8; 42];
-        let got = read_exact_or_eof(&mut file, &mut fixed).map_err(io)?;
-        if got < 8 || &fixed[..8] != MAGIC {
-            return Err(DumpError::NotADump {
+        let mut file =
+            std::io::BufReader::new(File::open(path).map_err(|source| DumpError::Io {
                 path: path.to_path_buf(),
-            });
-        }
-        if got < fixed.len() {
-            return Err(bad(format!("file ends at byte {got}, inside the header")));
-        }
-        let u32_at =
-            |o: usize| u32::from_le_bytes([fixed[o], fixed[o + 1], fixed[o + 2], fixed[o + 3]]);
-        let version = u32_at(8);
-        if version != VERSION {
-            return Err(DumpError::Version {
-                path: path.to_path_buf(),
-                found: version,
-            });
-        }
-        let header_len = u32_at(12) as usize;
-        if !(48..=42 + 4 + 2 * 65535 + 4).contains(&header_len) {
-            return Err(bad(format!("header length {header_len} is impossible")));
-        }
-        let mut rest = vec![0u8; header_len - 42];
-        let got = read_exact_or_eof(&mut file, &mut rest).map_err(io)?;
-        if got < rest.len() {
-            return Err(bad(format!(
-                "file ends at byte {}, inside the {header_len}-byte header",
-                42 + got
-            )));
-        }
-        let mut all = fixed.to_vec();
-        all.extend_from_slice(&rest);
-        let stored = u32::from_le_bytes([
-            all[header_len - 4],
-            all[header_len - 3],
-            all[header_len - 2],
-            all[header_len - 1],
-        ]);
-        if crc32fast::hash(&all[..header_len - 4]) != stored {
-            return Err(bad("header checksum mismatch".into()));
-        }
-        let mut pos = 40;
-        let mut string = |what: &str| -> Result<String, DumpError> {
-            if pos + 2 > header_len - 4 {
-                return Err(bad(format!("{what} length runs past the header")));
-            }
-            let n = u16::from_le_bytes([all[pos], all[pos + 1]]) as usize;
-            let (a, b) = (pos + 2, pos + 2 + n);
-            if b > header_len - 4 {
-                return Err(bad(format!("{what} runs past the header")));
-            }
-            pos = b;
-            String::from_utf8(all[a..b].to_vec()).map_err(|_| bad(format!("{what} is not UTF-8")))
-        };
-        let device = string("device name")?;
-        let card = string("card name")?;
-        let header = DumpHeader {
-            fourcc: [fixed[16], fixed[17], fixed[18], fixed[19]],
-            width: u32_at(20),
-            height: u32_at(24),
-            bytes_per_line: u32_at(28),
-            interval_num: u32_at(32),
-            interval_den: u32_at(36),
-            device,
-            card,
-        };
-        if header.width == 0 || header.height == 0 {
-            return Err(bad(format!(
-                "image size {}x{} is empty",
-                header.width, header.height
-            )));
-        }
+                source,
+            })?);
+        let (header, header_len) = read_header(&mut file, path)?;
         Ok(Self {
             path: path.to_path_buf(),
             file,
@@ -392,6 +378,105 @@ impl DumpReader {
     }
 }
 
+fn read_header(file: &mut impl Read, path: &Path) -> Result<(DumpHeader, usize), DumpError> {
+    let io = |source| DumpError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let bad = |message: String| DumpError::Header {
+        path: path.to_path_buf(),
+        message,
+    };
+    let mut fixed = [0u8; 42];
+    let got = read_exact_or_eof(file, &mut fixed).map_err(io)?;
+    if got < 8 || &fixed[..8] != MAGIC {
+        return Err(DumpError::NotADump {
+            path: path.to_path_buf(),
+        });
+    }
+    if got < fixed.len() {
+        return Err(bad(format!("file ends at byte {got}, inside the header")));
+    }
+    let u32_at =
+        |o: usize| u32::from_le_bytes([fixed[o], fixed[o + 1], fixed[o + 2], fixed[o + 3]]);
+    let version = u32_at(8);
+    if version != VERSION {
+        return Err(DumpError::Version {
+            path: path.to_path_buf(),
+            found: version,
+        });
+    }
+    let header_len = u32_at(12) as usize;
+    if !(48..=42 + 4 + 2 * 65535 + 4).contains(&header_len) {
+        return Err(bad(format!("header length {header_len} is impossible")));
+    }
+    let mut rest = vec![0u8; header_len - 42];
+    let got = read_exact_or_eof(file, &mut rest).map_err(io)?;
+    if got < rest.len() {
+        return Err(bad(format!(
+            "file ends at byte {}, inside the {header_len}-byte header",
+            42 + got
+        )));
+    }
+    let mut all = fixed.to_vec();
+    all.extend_from_slice(&rest);
+    let stored = u32::from_le_bytes([
+        all[header_len - 4],
+        all[header_len - 3],
+        all[header_len - 2],
+        all[header_len - 1],
+    ]);
+    if crc32fast::hash(&all[..header_len - 4]) != stored {
+        return Err(bad("header checksum mismatch".into()));
+    }
+    let mut pos = 40;
+    let mut string = |what: &str| -> Result<String, DumpError> {
+        if pos + 2 > header_len - 4 {
+            return Err(bad(format!("{what} length runs past the header")));
+        }
+        let n = u16::from_le_bytes([all[pos], all[pos + 1]]) as usize;
+        let (a, b) = (pos + 2, pos + 2 + n);
+        if b > header_len - 4 {
+            return Err(bad(format!("{what} runs past the header")));
+        }
+        pos = b;
+        String::from_utf8(all[a..b].to_vec()).map_err(|_| bad(format!("{what} is not UTF-8")))
+    };
+    let device = string("device name")?;
+    let card = string("card name")?;
+    let header = DumpHeader {
+        fourcc: [fixed[16], fixed[17], fixed[18], fixed[19]],
+        width: u32_at(20),
+        height: u32_at(24),
+        bytes_per_line: u32_at(28),
+        interval_num: u32_at(32),
+        interval_den: u32_at(36),
+        device,
+        card,
+    };
+    check_frame_size(&header).map_err(bad)?;
+    Ok((header, header_len))
+}
+
+/// A whole dump held in memory, read as [`DumpReader`] reads a file: the header, the
+/// whole records, and the error that ended the records early (if any).
+pub fn parse(bytes: &[u8]) -> Result<(DumpHeader, Vec<Record>, Option<DumpError>), DumpError> {
+    let path = Path::new("<memory>");
+    let mut cursor = std::io::Cursor::new(bytes);
+    let (header, header_len) = read_header(&mut cursor, path)?;
+    let (mut offset, mut records) = (header_len as u64, Vec::new());
+    loop {
+        match read_record(&mut cursor, path, offset, records.len()) {
+            Ok(Some(r)) => {
+                offset += 24 + r.payload.len() as u64 + 4;
+                records.push(r);
+            }
+            Ok(None) => return Ok((header, records, None)),
+            Err(e) => return Ok((header, records, Some(e))),
+        }
+    }
+}
+
 /// One record from `file` positioned at `offset`; `Ok(None)` at a clean end of file.
 fn read_record(
     file: &mut impl Read,
@@ -430,9 +515,12 @@ fn read_record(
     if used > MAX_PAYLOAD {
         return Err(corrupt(format!("impossible payload length {used}")));
     }
-    let mut body = vec![0u8; used as usize + 4];
-    let got = read_exact_or_eof(file, &mut body).map_err(io)?;
-    if got < body.len() {
+    // Grown as the bytes arrive: a cut-off file costs what it holds, not the length
+    // its last record claims.
+    let want = used as usize + 4;
+    let mut body = Vec::with_capacity(want.min(1 << 20));
+    file.take(want as u64).read_to_end(&mut body).map_err(io)?;
+    if body.len() < want {
         return Err(truncated());
     }
     let crc_at = used as usize;
@@ -545,16 +633,28 @@ pub fn with_huffman_tables(jpeg: &[u8]) -> std::borrow::Cow<'_, [u8]> {
     }
 }
 
+/// True when a JPEG's scan ends with the end-of-image marker. The decoder fills a
+/// cut-off scan with grey without a word; the marker cannot occur inside the scan
+/// (a data byte 0xFF is always followed by 0x00 or a restart marker there), so its
+/// absence after the first scan means the frame was cut off.
+pub fn jpeg_is_complete(jpeg: &[u8]) -> bool {
+    let Some((_, sos)) = jpeg_segments(jpeg) else {
+        return false;
+    };
+    jpeg[sos..].windows(2).any(|w| w == [0xFF, 0xD9])
+}
+
 /// Bytes per line of a packed format of `bytes_per_pixel` (the header's, or the packed
 /// width when it says 0), checked against the payload's length.
 fn packed_stride(header: &DumpHeader, bytes_per_pixel: usize, len: usize) -> Result<usize, String> {
+    check_frame_size(header)?;
     let (w, h) = (header.width as usize, header.height as usize);
     let row = bytes_per_pixel * w;
     let stride = match header.bytes_per_line {
         0 => row,
         n => n as usize,
     };
-    if stride < row || len < stride * (h - 1) + row {
+    if len < stride * (h - 1) + row {
         return Err(format!(
             "{len} bytes is too short for {w}x{h} {} with {stride} bytes per line",
             fourcc_str(header.fourcc)
@@ -587,10 +687,26 @@ pub fn decode_rgb(header: &DumpHeader, payload: &[u8]) -> Result<RgbImage, Strin
     let (w, h) = (header.width as usize, header.height as usize);
     match &header.fourcc {
         b"MJPG" | b"JPEG" => {
+            check_frame_size(header)?;
+            if !jpeg_is_complete(payload) {
+                return Err(format!(
+                    "the JPEG of {} bytes is not whole (no end-of-image marker after its scan: cut off?)",
+                    payload.len()
+                ));
+            }
             let jpeg = with_huffman_tables(payload);
-            let img = image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg)
-                .map_err(|e| e.to_string())?
-                .into_rgb8();
+            // The JPEG's own size bounds the decoder's allocation, not the header's:
+            // a damaged frame may claim 65535x65535.
+            let mut limits = image::Limits::default();
+            limits.max_image_width = Some(header.width);
+            limits.max_image_height = Some(header.height);
+            limits.max_alloc = Some(4 * w as u64 * h as u64 + (16 << 20));
+            let mut reader = image::ImageReader::with_format(
+                std::io::Cursor::new(&jpeg[..]),
+                image::ImageFormat::Jpeg,
+            );
+            reader.limits(limits);
+            let img = reader.decode().map_err(|e| e.to_string())?.into_rgb8();
             if img.width() as usize != w || img.height() as usize != h {
                 return Err(format!(
                     "JPEG is {}x{}, the header says {w}x{h}",
@@ -798,5 +914,88 @@ mod tests {
         let p = img.get_pixel(0, 0).0;
         assert!(p[0] > 240 && p[1] < 15 && p[2] < 15, "{p:?}");
         assert!(decode_rgb(&h, &[1, 2]).is_err());
+    }
+
+    fn header_bytes(h: &DumpHeader) -> Vec<u8> {
+        h.to_bytes()
+    }
+
+    #[test]
+    fn a_header_whose_frame_size_overflows_is_refused_with_a_message() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("a.dump");
+        for (fourcc, w, h, bpl) in [
+            (*b"YUYV", 4_294_901_823, 2_147_516_385, 0),
+            (*b"RGB3", 4_294_901_823, 1_431_677_590, 0),
+            (*b"MJPG", 65_535, 65_535, 0),
+            (*b"RGB3", 640, 480, u32::MAX),
+            (*b"YUYV", 640, 480, 100),
+        ] {
+            let h = DumpHeader {
+                fourcc,
+                width: w,
+                height: h,
+                bytes_per_line: bpl,
+                ..header()
+            };
+            std::fs::write(&p, header_bytes(&h)).expect("write");
+            let err = DumpReader::open(&p).err().expect("refused");
+            assert!(matches!(err, DumpError::Header { .. }), "{err}");
+            assert!(err.to_string().contains(&w.to_string()), "{err}");
+            // decode_rgb is refused too, for headers from elsewhere (a device).
+            assert!(decode_rgb(&h, &[0; 64]).is_err());
+            assert_eq!(frame_capacity(&h), None);
+        }
+        // A sane 4K RGB header passes, and its ring slot is what a frame needs.
+        let h = DumpHeader {
+            fourcc: *b"RGB3",
+            width: 3840,
+            height: 2160,
+            bytes_per_line: 0,
+            ..header()
+        };
+        assert_eq!(frame_capacity(&h), Some(3840 * 2160 * 3));
+    }
+
+    #[test]
+    fn a_cut_off_jpeg_is_not_decoded_as_a_grey_frame() {
+        let img = RgbImage::from_fn(64, 48, |x, y| image::Rgb([(x * 4) as u8, (y * 5) as u8, 9]));
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 85)
+            .encode_image(&img)
+            .expect("encode");
+        let header = DumpHeader {
+            fourcc: *b"MJPG",
+            width: 64,
+            height: 48,
+            bytes_per_line: 0,
+            ..header()
+        };
+        assert!(jpeg_is_complete(&jpeg));
+        decode_rgb(&header, &jpeg).expect("whole");
+        let third = &jpeg[..jpeg.len() / 3];
+        assert!(!jpeg_is_complete(third));
+        let err = decode_rgb(&header, third).expect_err("cut off");
+        assert!(err.contains("end-of-image"), "{err}");
+    }
+
+    #[test]
+    fn parse_reads_a_dump_from_memory_like_the_file_reader() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("a.dump");
+        write(&p, 3);
+        let bytes = std::fs::read(&p).expect("read");
+        let (h, records, end) = parse(&bytes).expect("parse");
+        assert_eq!(h, header());
+        assert_eq!(records.len(), 3);
+        assert!(end.is_none());
+        // A record claiming 64 MiB in a short file is cut off, not allocated.
+        let mut cut = bytes[..header().to_bytes().len()].to_vec();
+        cut.extend_from_slice(b"FRAM");
+        cut.extend_from_slice(&[0; 16]);
+        cut.extend_from_slice(&MAX_PAYLOAD.to_le_bytes());
+        let (_, records, end) = parse(&cut).expect("parse");
+        assert!(records.is_empty());
+        assert!(matches!(end, Some(DumpError::Truncated { .. })), "{end:?}");
     }
 }

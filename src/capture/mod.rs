@@ -70,4 +70,9 @@ pub trait FrameSource: Send {
     fn next(&mut self, timeout: Duration) -> Result<Next<'_>, CaptureError>;
     /// Skips to the first frame at `position` or after it (resuming a scan).
     fn seek(&mut self, position: u64) -> Result<(), CaptureError>;
+    /// Something about the input the status should say (once), such as a replay's
+    /// timestamps that had to be clamped.
+    fn take_warning(&mut self) -> Option<String> {
+        None
+    }
 }

@@ -52,6 +52,32 @@ pub use truth::{
 /// Version of the JSON report.
 pub const REPORT_VERSION: u32 = 1;
 
+/// Fewest points with finite coordinates a cloud or reference must have: statistics
+/// of fewer (or of none, if all are NaN or inf) would be zeros that look like a
+/// perfect match.
+pub const MIN_FINITE_POINTS: usize = 3;
+
+/// Refuses a point set with fewer than [`MIN_FINITE_POINTS`] finite points.
+pub fn check_finite(which: &'static str, points: &[[f32; 3]]) -> Result<(), CompareError> {
+    let finite = points
+        .iter()
+        .filter(|p| p.iter().all(|c| c.is_finite()))
+        .take(MIN_FINITE_POINTS)
+        .count();
+    if finite < MIN_FINITE_POINTS {
+        let finite = points
+            .iter()
+            .filter(|p| p.iter().all(|c| c.is_finite()))
+            .count();
+        return Err(CompareError::TooFewFinite {
+            which,
+            finite,
+            total: points.len(),
+        });
+    }
+    Ok(())
+}
+
 /// Points per parallel work item (and per progress update) in distance queries.
 const CHUNK: usize = 1 << 14;
 
@@ -61,6 +87,12 @@ pub enum CompareError {
     EmptyCloud,
     #[error("the reference has no points")]
     EmptyReference,
+    #[error("the {which} has {finite} points with finite coordinates (of {total}); at least {MIN_FINITE_POINTS} are needed for a comparison")]
+    TooFewFinite {
+        which: &'static str,
+        finite: usize,
+        total: usize,
+    },
     #[error("the reference has more than 4294967295 points")]
     TooManyPoints,
     #[error("alignment failed")]
@@ -175,6 +207,8 @@ pub fn compare_to_reference(
     if reference.is_empty() {
         return Err(CompareError::EmptyReference);
     }
+    check_finite("cloud", cloud)?;
+    check_finite("reference", reference)?;
     progress("building k-d tree", 0, 1);
     let tree = KdTree::new(reference).ok_or(CompareError::TooManyPoints)?;
     progress("aligning", 0, 1);
@@ -489,7 +523,7 @@ mod tests {
     #[test]
     fn report_carries_version_and_alignment() {
         let reference = vec![[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]];
-        let cloud = vec![[0.0, 0.0, 1.5]];
+        let cloud = vec![[0.0, 0.0, 1.5], [1.0, 0.0, 1.5], [0.0, 1.0, 1.5]];
         let c = compare_to_reference(&cloud, &reference, &CompareParams::default(), &no_progress)
             .expect("compare");
         assert!((c.stats.median - 0.5).abs() < 1e-6);
@@ -498,10 +532,42 @@ mod tests {
         assert_eq!(json["alignment"]["mode"], "none");
         assert_eq!(json["alignment"]["scale"], 1.0);
         assert!(json["alignment"]["rms"].is_null());
-        assert_eq!(json["distances"]["count"], 1);
+        assert_eq!(json["distances"]["count"], 3);
         assert!(matches!(
             compare_to_reference(&[], &reference, &CompareParams::default(), &no_progress),
             Err(CompareError::EmptyCloud)
         ));
+    }
+
+    #[test]
+    fn a_cloud_of_nan_and_inf_is_refused_not_scored_zero() {
+        let reference = vec![[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]];
+        let cloud = vec![
+            [f32::NAN, 0.0, 1.0],
+            [f32::INFINITY, 0.0, 1.0],
+            [0.0, f32::NEG_INFINITY, 1.0],
+            [0.0, 0.0, 1.0],
+        ];
+        let err = compare_to_reference(&cloud, &reference, &CompareParams::default(), &no_progress)
+            .expect_err("one finite point");
+        assert!(
+            matches!(
+                err,
+                CompareError::TooFewFinite {
+                    which: "cloud",
+                    finite: 1,
+                    total: 4
+                }
+            ),
+            "{err}"
+        );
+        let err = compare_to_reference(
+            &reference,
+            &cloud[..2],
+            &CompareParams::default(),
+            &no_progress,
+        )
+        .expect_err("no finite reference point");
+        assert!(err.to_string().contains("reference has 0 points"), "{err}");
     }
 }

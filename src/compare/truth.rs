@@ -398,7 +398,7 @@ mod tests {
                 let z = truth.true_depth(&ray).expect("surface");
                 let factor = if k % 10 == 9 {
                     1.2
-                } else if (k / 10) % 2 == 0 {
+                } else if (k / 10).is_multiple_of(2) {
                     1.005
                 } else {
                     0.995

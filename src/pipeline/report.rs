@@ -51,6 +51,8 @@ pub struct StageTimes {
 pub struct ReconstructReport {
     pub version: u32,
     pub frames: usize,
+    /// Frames that could not be decoded and were skipped (counted as frames).
+    pub frames_skipped: usize,
     pub frames_with_laser: usize,
     pub curves: usize,
     pub planes: usize,
@@ -104,6 +106,7 @@ pub(crate) fn assemble(
     let report = ReconstructReport {
         version: REPORT_VERSION,
         frames: scan.frames(),
+        frames_skipped: 0,
         frames_with_laser,
         curves: scan.num_curves(),
         planes: scan.planes().len(),

@@ -161,8 +161,10 @@ fn decode(b: &[u8]) -> Result<(FrameCurves, usize), String> {
     for _ in 0..n {
         let laser = c.u8().ok_or_else(short)?;
         let m = c.u32().ok_or_else(short)? as usize;
-        if m > b.len() {
-            return Err("point count beyond the record".into());
+        // A point is 28 bytes: a count the rest of the record cannot hold is damage,
+        // and must not size an allocation.
+        if m > (b.len() - c.at) / 28 {
+            return Err("cut off or damaged: point count beyond the record".into());
         }
         let mut curve = Curve {
             laser,
@@ -179,8 +181,8 @@ fn decode(b: &[u8]) -> Result<(FrameCurves, usize), String> {
             curve.strength.push(c.f32().ok_or_else(short)?);
         }
         let p = c.u32().ok_or_else(short)? as usize;
-        if p > b.len() {
-            return Err("polyline length beyond the record".into());
+        if p > (b.len() - c.at) / 16 {
+            return Err("cut off or damaged: polyline length beyond the record".into());
         }
         for _ in 0..p {
             curve
@@ -257,16 +259,61 @@ pub fn resume(dir: &Path, width: u32, height: u32) -> Result<Resumed, Checkpoint
     File::open(&log)
         .and_then(|mut f| f.read_to_end(&mut bytes))
         .map_err(io(&log))?;
+    let parsed = read_log(&bytes, &log, width, height)?;
+    out.frames = parsed.frames;
+    out.stopped = parsed.stopped;
+    let at = parsed.whole_bytes;
+    if at < bytes.len() {
+        // Cut the damaged tail so appending continues from the last whole frame.
+        OpenOptions::new()
+            .write(true)
+            .open(&log)
+            .and_then(|f| f.set_len(at as u64))
+            .map_err(io(&log))?;
+    }
+    Ok(out)
+}
+
+/// The frames of a `curves.log` held in memory.
+pub struct Log {
+    pub frames: Vec<FrameCurves>,
+    /// Why the log stopped before its end, if it did.
+    pub stopped: Option<String>,
+    /// Bytes of whole header and records (where appending continues); 0 for a log
+    /// without a whole header.
+    pub whole_bytes: usize,
+}
+
+/// Parses the bytes of a `curves.log` (`path` labels errors). A log shorter than its
+/// header that is a prefix of a header is an empty log: a crash right after creating
+/// it leaves one, and the scan must restart, not fail.
+pub fn read_log(
+    bytes: &[u8],
+    path: &Path,
+    width: u32,
+    height: u32,
+) -> Result<Log, CheckpointError> {
+    let mut out = Log {
+        frames: Vec::new(),
+        stopped: None,
+        whole_bytes: 0,
+    };
+    if bytes.len() < HEADER_BYTES as usize && MAGIC.starts_with(&bytes[..bytes.len().min(8)]) {
+        if !bytes.is_empty() {
+            out.stopped = Some(format!("the header is cut off after {} bytes", bytes.len()));
+        }
+        return Ok(out);
+    }
     if bytes.len() < HEADER_BYTES as usize || &bytes[..8] != MAGIC {
         return Err(CheckpointError::Format {
-            path: log,
+            path: path.to_path_buf(),
             message: "not a crossline curves log (expected magic CRSLCURV)".into(),
         });
     }
     let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
     if version != VERSION {
         return Err(CheckpointError::Format {
-            path: log,
+            path: path.to_path_buf(),
             message: format!("version {version}, this crossline reads {VERSION}"),
         });
     }
@@ -274,7 +321,7 @@ pub fn resume(dir: &Path, width: u32, height: u32) -> Result<Resumed, Checkpoint
     let h = u32::from_le_bytes([bytes[16], bytes[17], bytes[18], bytes[19]]);
     if (w, h) != (width, height) {
         return Err(CheckpointError::Size {
-            path: log,
+            path: path.to_path_buf(),
             got_w: w,
             got_h: h,
             want_w: width,
@@ -302,14 +349,7 @@ pub fn resume(dir: &Path, width: u32, height: u32) -> Result<Resumed, Checkpoint
             }
         }
     }
-    if at < bytes.len() {
-        // Cut the damaged tail so appending continues from the last whole frame.
-        OpenOptions::new()
-            .write(true)
-            .open(&log)
-            .and_then(|f| f.set_len(at as u64))
-            .map_err(io(&log))?;
-    }
+    out.whole_bytes = at;
     Ok(out)
 }
 
@@ -338,6 +378,13 @@ impl CheckpointWriter {
             h.extend_from_slice(&width.to_le_bytes());
             h.extend_from_slice(&height.to_le_bytes());
             file.write_all(&h).map_err(io(&path))?;
+            // On disk before any frame: a log whose header still sat in the buffer
+            // when the process was killed would be empty, and refused on every restart.
+            file.flush().map_err(io(&path))?;
+            file.get_ref().sync_all().map_err(io(&path))?;
+            if let Ok(d) = File::open(dir) {
+                let _ = d.sync_all();
+            }
         }
         Ok(Self {
             path,
@@ -463,5 +510,50 @@ mod tests {
         let r = resume(dir.path(), 8, 8).expect("resume");
         assert_eq!(r.frames.len(), 1);
         assert!(r.stopped.as_deref().is_some_and(|s| s.contains("CRC")));
+    }
+
+    #[test]
+    fn the_header_is_on_disk_at_creation_and_an_empty_log_resumes_empty() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let w =
+            CheckpointWriter::open(dir.path(), 64, 48, Duration::from_secs(3600)).expect("open");
+        // Read through another handle while the writer is alive (a kill -9 now).
+        let log = dir.path().join("curves.log");
+        assert_eq!(
+            std::fs::read(&log).expect("read").len(),
+            HEADER_BYTES as usize
+        );
+        drop(w);
+        // An empty log (or one cut inside its header) is an empty checkpoint.
+        for len in [0, 7, 12] {
+            let header = std::fs::read(&log).expect("read");
+            std::fs::write(&log, &header[..len.min(header.len())]).expect("cut");
+            let r = resume(dir.path(), 64, 48).expect("an empty checkpoint");
+            assert!(r.frames.is_empty());
+            assert_eq!(r.stopped.is_some(), len > 0);
+            let mut w = CheckpointWriter::open(dir.path(), 64, 48, Duration::from_secs(3600))
+                .expect("reopen");
+            w.append(&frame(0)).expect("append");
+            w.sync().expect("sync");
+            drop(w);
+            assert_eq!(
+                resume(dir.path(), 64, 48).expect("resume").frames,
+                vec![frame(0)]
+            );
+            std::fs::write(&log, &header).expect("restore");
+        }
+        // Something else is still refused.
+        std::fs::write(&log, b"PK\x03\x04 a zip file, not a log").expect("write");
+        assert!(resume(dir.path(), 64, 48).is_err());
+    }
+
+    #[test]
+    fn a_point_count_larger_than_the_record_is_refused_before_allocating() {
+        let mut rec = Vec::new();
+        encode(&frame(0), &mut rec);
+        // The first curve's point count sits after 4+8+8+4+8+4 bytes and its laser byte.
+        rec[37..41].copy_from_slice(&u32::MAX.to_le_bytes());
+        let err = decode(&rec).expect_err("refused");
+        assert!(err.contains("point count"), "{err}");
     }
 }

@@ -77,6 +77,7 @@ pub struct ServeConfig {
     pub stream_tcp: String,
     pub stream_unix: String,
     pub client_queue_mib: usize,
+    pub stream_clients_max: usize,
     pub drain_timeout_s: f64,
     pub reconnect_max_backoff_s: f64,
 }
@@ -104,6 +105,7 @@ impl Default for ServeConfig {
             stream_tcp: "127.0.0.1:7878".into(),
             stream_unix: String::new(),
             client_queue_mib: 64,
+            stream_clients_max: 64,
             drain_timeout_s: 5.0,
             reconnect_max_backoff_s: 5.0,
         }
@@ -136,6 +138,10 @@ pub enum ServeError {
     },
     #[error("writing the cloud: {0}")]
     Ply(#[from] crate::ply::PlyError),
+    #[error("{path} is in use by another crossline serve (pid {pid}): one daemon per out_dir; stop it or give this one another [serve] out_dir")]
+    Busy { path: PathBuf, pid: String },
+    #[error("the stream's frames ({header}) are larger than crossline buffers: {message}")]
+    FrameSize { header: String, message: String },
     #[error("cannot start thread {name}: {source}")]
     Thread {
         name: String,
@@ -543,6 +549,32 @@ pub fn run(
         });
     }
     Extractor::new(&opts.config.extract, &opts.camera)?;
+    // Sizes first: nothing is allocated or touched for a stream we cannot buffer.
+    let slot_bytes = crate::capture::dump::frame_capacity(&header)
+        .filter(|b| b.saturating_mul(cfg.ring_slots.max(2)) <= MAX_RING_BYTES)
+        .ok_or_else(|| ServeError::FrameSize {
+            header: format!(
+                "{} {}x{}, {} bytes per line",
+                String::from_utf8_lossy(&header.fourcc),
+                header.width,
+                header.height,
+                header.bytes_per_line
+            ),
+            message: crate::capture::dump::check_frame_size(&header)
+                .err()
+                .unwrap_or_else(|| {
+                    format!(
+                        "[serve] ring_slots = {} of them need more than {MAX_RING_BYTES} bytes",
+                        cfg.ring_slots
+                    )
+                }),
+        })?;
+    // Then the lock, before reading or moving anything in out_dir: a second daemon on
+    // the same directory would append to the same log and replace the sockets.
+    let _lock = lock_out_dir(&opts.out_dir)?;
+    // Descriptors held back for the final cloud and report, released just before
+    // they are written, so that clients exhausting the limit cannot lose the scan.
+    let mut reserve = FdReserve::new(RESERVED_FDS);
     let (scan, resumed_scan) = open_scan(&opts, header.width, header.height)?;
     let resumed = if resumed_scan {
         checkpoint::resume(&scan.state, header.width, header.height)?
@@ -571,6 +603,7 @@ pub fn run(
         stream_tcp: none_if_empty(&cfg.stream_tcp),
         stream_unix: none_if_empty(&cfg.stream_unix).map(PathBuf::from),
         status_unix: none_if_empty(&cfg.status_socket).map(PathBuf::from),
+        max_clients: cfg.stream_clients_max,
     };
     let listeners = net::bind(&endpoints)?;
     if let Some(addr) = listeners.tcp_addr {
@@ -583,7 +616,11 @@ pub fn run(
         "daemon": concat!("crossline ", env!("CARGO_PKG_VERSION")),
     })
     .to_string();
-    let hub = Arc::new(net::Hub::new(&hello, cfg.client_queue_mib << 20, started));
+    let hub = Arc::new(net::Hub::new(
+        &hello,
+        cfg.client_queue_mib.saturating_mul(1 << 20),
+        started,
+    ));
     let feed = Arc::new(net::StatusFeed::new());
     let net_stop = Arc::new(tokio::sync::Notify::new());
     let shared = Arc::new(Shared::default());
@@ -593,11 +630,8 @@ pub fn run(
         std::thread::available_parallelism().map_or(1, |n| n.get())
     } else {
         cfg.workers
-    };
-    let slot_bytes = match &header.fourcc {
-        b"MJPG" | b"JPEG" => (header.width * header.height) as usize,
-        _ => (header.bytes_per_line.max(header.width * 3) * header.height) as usize,
-    };
+    }
+    .min(MAX_WORKERS);
     let (producer, consumer) = ring::ring(cfg.ring_slots.max(2), slot_bytes);
     let (result_tx, result_rx) = bounded::<Extracted>(2 * workers + 2);
     let warmup = Arc::new(Warmup {
@@ -624,7 +658,7 @@ pub fn run(
         &scan.state,
         header.width,
         header.height,
-        Duration::from_secs_f64(cfg.checkpoint_interval_s.max(0.05)),
+        seconds(cfg.checkpoint_interval_s, 0.05, 86_400.0),
     )?;
     // Replay the checkpointed frames into the solver (no sending: nobody listens yet).
     let mut start_position = 0;
@@ -650,7 +684,7 @@ pub fn run(
         // Sockets.
         let net_handle = {
             let (hub, feed, net_stop) = (hub.clone(), feed.clone(), net_stop.clone());
-            let drain = Duration::from_secs_f64(cfg.drain_timeout_s.max(0.0));
+            let drain = seconds(cfg.drain_timeout_s, 0.0, 3600.0);
             std::thread::Builder::new()
                 .name("net".into())
                 .spawn_scoped(s, move || listeners.serve(hub, feed, net_stop, drain))
@@ -737,7 +771,7 @@ pub fn run(
                 hub.clone(),
                 status_stop.clone(),
             );
-            let interval = Duration::from_millis(cfg.status_interval_ms.max(50));
+            let interval = Duration::from_millis(cfg.status_interval_ms.clamp(50, 3_600_000));
             let scan_id = scan.id.clone();
             let notifier = &notifier;
             let capture_done = capture_done.clone();
@@ -810,6 +844,7 @@ pub fn run(
         );
         workers_stop.store(true, Ordering::Relaxed);
         let outcome = result.and_then(|()| {
+            reserve.release();
             finish(
                 &mut solver,
                 &mut checkpoint,
@@ -863,9 +898,91 @@ pub fn run(
         reconstruction: rec,
         solve_error,
     };
+    if report.decode_errors > 0 {
+        tracing::warn!(
+            "{} of {} frames could not be decoded and were skipped",
+            report.decode_errors,
+            report.frames_in
+        );
+    }
     let text = serde_json::to_string_pretty(&report).unwrap_or_default();
     write_atomic(&scan.report, text.as_bytes())?;
     Ok(report)
+}
+
+/// Extraction threads at most, whatever `[serve] workers` or `--workers` say.
+pub const MAX_WORKERS: usize = 256;
+/// Largest ring (slots × slot size) the daemon allocates.
+pub const MAX_RING_BYTES: usize = 4 << 30;
+/// File descriptors held back for writing the final cloud and report.
+pub const RESERVED_FDS: usize = 16;
+
+/// `secs` clamped to `lo..=hi` (NaN to `lo`) as a duration: the config's bounds are
+/// checked when a file is parsed, but a `ServeConfig` may be built in code.
+fn seconds(secs: f64, lo: f64, hi: f64) -> Duration {
+    let s = if secs.is_nan() {
+        lo
+    } else {
+        secs.clamp(lo, hi)
+    };
+    Duration::try_from_secs_f64(s).unwrap_or(Duration::from_secs_f64(lo))
+}
+
+/// Open files kept only to be closed when they are needed (see [`RESERVED_FDS`]).
+struct FdReserve(Vec<std::fs::File>);
+
+impl FdReserve {
+    fn new(n: usize) -> Self {
+        Self(
+            (0..n)
+                .filter_map(|_| std::fs::File::open("/dev/null").ok())
+                .collect(),
+        )
+    }
+
+    fn release(&mut self) {
+        self.0.clear();
+    }
+}
+
+/// Takes the exclusive lock of `out_dir` (`out_dir/lock`, holding the owner's pid),
+/// for as long as the returned file lives.
+fn lock_out_dir(out_dir: &Path) -> Result<std::fs::File, ServeError> {
+    use std::io::{Read, Seek, Write};
+    let path = out_dir.join("lock");
+    let io = |what| {
+        let path = path.clone();
+        move |source| ServeError::Io { what, path, source }
+    };
+    std::fs::create_dir_all(out_dir).map_err(io("cannot create the directory of"))?;
+    let mut file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(io("cannot open"))?;
+    match file.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => {
+            let mut pid = String::new();
+            let _ = file.read_to_string(&mut pid);
+            let pid = crate::truncate_echo(pid.trim());
+            return Err(ServeError::Busy {
+                path: out_dir.to_path_buf(),
+                pid: if pid.is_empty() {
+                    "unknown".into()
+                } else {
+                    pid
+                },
+            });
+        }
+        Err(std::fs::TryLockError::Error(e)) => return Err(io("cannot lock")(e)),
+    }
+    file.set_len(0).map_err(io("cannot write"))?;
+    file.rewind().map_err(io("cannot write"))?;
+    writeln!(file, "{}", std::process::id()).map_err(io("cannot write"))?;
+    Ok(file)
 }
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ServeError> {
@@ -922,6 +1039,9 @@ fn capture_loop(
         shared
             .ring_depth
             .store(producer.depth() as u64, Ordering::Relaxed);
+        if let Some(warning) = source.take_warning() {
+            *lock(&shared.last_error) = Some(warning);
+        }
         let frame = match source.next(Duration::from_millis(100)) {
             Ok(Next::Frame(f)) => f,
             Ok(Next::Idle) => continue,
@@ -1065,8 +1185,11 @@ fn worker_loop(
                         c
                     }
                     Err(e) => {
-                        tracing::warn!(frame = meta.index, "cannot use YUYV frame: {e}");
-                        shared.decode_errors.fetch_add(1, Ordering::Relaxed);
+                        if shared.decode_errors.fetch_add(1, Ordering::Relaxed) == 0 {
+                            tracing::warn!(frame = meta.index, "skipping a YUYV frame: {e}");
+                        } else {
+                            tracing::debug!(frame = meta.index, "skipping a YUYV frame: {e}");
+                        }
                         Vec::new()
                     }
                 };
@@ -1090,7 +1213,11 @@ fn worker_loop(
                 None
             }
             Err(e) => {
-                tracing::warn!(frame = meta.index, "cannot decode frame: {e}");
+                if shared.decode_errors.load(Ordering::Relaxed) == 0 {
+                    tracing::warn!(frame = meta.index, "skipping a frame: {e}");
+                } else {
+                    tracing::debug!(frame = meta.index, "skipping a frame: {e}");
+                }
                 None
             }
         };
@@ -1382,5 +1509,27 @@ mod tests {
 
     fn header_len(h: &DumpHeader) -> u64 {
         (42 + 2 + h.device.len() + h.card.len() + 4) as u64
+    }
+
+    #[test]
+    fn a_second_daemon_on_the_same_out_dir_is_refused_naming_the_first() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let held = lock_out_dir(dir.path()).expect("first");
+        let err = lock_out_dir(dir.path()).expect_err("second");
+        let msg = err.to_string();
+        assert!(
+            msg.contains(&format!("pid {}", std::process::id())),
+            "{msg}"
+        );
+        drop(held);
+        lock_out_dir(dir.path()).expect("free again once the first is gone");
+    }
+
+    #[test]
+    fn durations_from_the_config_never_panic() {
+        for s in [f64::INFINITY, 1e300, -1.0, f64::NAN, f64::NEG_INFINITY] {
+            let d = seconds(s, 0.05, 86_400.0);
+            assert!(d >= Duration::from_millis(50) && d <= Duration::from_secs(86_400));
+        }
     }
 }

@@ -333,6 +333,21 @@ pub struct Endpoints {
     pub stream_tcp: Option<String>,
     pub stream_unix: Option<PathBuf>,
     pub status_unix: Option<PathBuf>,
+    /// Stream clients served at once (TCP and Unix together), and as many status
+    /// clients: each holds a file descriptor, and the final cloud needs some too.
+    pub max_clients: usize,
+}
+
+/// Connections over the cap: accepted and closed at once (so the backlog does not
+/// fill with them), warned about once, counted at debug level after that.
+fn refuse(refused: &AtomicU64, what: &str, max: usize) {
+    if refused.fetch_add(1, Ordering::Relaxed) == 0 {
+        tracing::warn!(
+            "{what}: {max} clients already connected ([serve] stream_clients_max); closing new connections while they are"
+        );
+    } else {
+        tracing::debug!("{what}: refused a client over the cap of {max}");
+    }
 }
 
 /// The newest status line and the feed of new ones.
@@ -377,7 +392,7 @@ pub enum NetError {
 }
 
 fn bind_unix(path: &Path, mode: u32) -> Result<tokio::net::UnixListener, NetError> {
-    use std::os::unix::fs::PermissionsExt;
+    use std::os::unix::fs::{DirBuilderExt, PermissionsExt};
     let err = |source| NetError::Bind {
         what: path.display().to_string(),
         source,
@@ -392,8 +407,28 @@ fn bind_unix(path: &Path, mode: u32) -> Result<tokio::net::UnixListener, NetErro
     }) {
         let _ = std::fs::remove_file(path);
     }
-    let l = tokio::net::UnixListener::bind(path).map_err(err)?;
-    std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode)).map_err(err)?;
+    // `bind` creates the socket with the mode the umask leaves: bind it in a fresh
+    // directory only we can enter, set its mode there, then move it into place, so it
+    // is never reachable with a wider mode than `mode`.
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty());
+    let private = dir
+        .unwrap_or(Path::new("."))
+        .join(format!(".crossline-bind-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&private);
+    std::fs::DirBuilder::new()
+        .mode(0o700)
+        .create(&private)
+        .map_err(err)?;
+    let staged = private.join("socket");
+    let bound = tokio::net::UnixListener::bind(&staged)
+        .and_then(|l| {
+            std::fs::set_permissions(&staged, std::fs::Permissions::from_mode(mode))?;
+            std::fs::rename(&staged, path)?;
+            Ok(l)
+        })
+        .map_err(err);
+    let _ = std::fs::remove_dir_all(&private);
+    let l = bound?;
     Ok(l)
 }
 
@@ -405,6 +440,7 @@ pub struct Listeners {
     status_unix: Option<tokio::net::UnixListener>,
     pub tcp_addr: Option<std::net::SocketAddr>,
     paths: Vec<PathBuf>,
+    max_clients: usize,
 }
 
 /// Binds every socket (before the pipeline starts, so a bad address fails early).
@@ -459,6 +495,7 @@ pub fn bind(endpoints: &Endpoints) -> Result<Listeners, NetError> {
         status_unix,
         tcp_addr,
         paths,
+        max_clients: endpoints.max_clients.max(1),
     })
 }
 
@@ -472,19 +509,31 @@ impl Listeners {
             stream_unix,
             status_unix,
             paths,
+            max_clients,
             ..
         } = self;
         runtime.block_on(async move {
             let mut tasks = tokio::task::JoinSet::new();
+            let streams = Arc::new(tokio::sync::Semaphore::new(max_clients));
+            let statuses = Arc::new(tokio::sync::Semaphore::new(max_clients));
+            let refused = Arc::new(AtomicU64::new(0));
             if let Some(l) = tcp {
-                let hub = hub.clone();
+                let (hub, streams, refused) = (hub.clone(), streams.clone(), refused.clone());
                 tasks.spawn(async move {
                     loop {
                         match l.accept().await {
                             Ok((sock, peer)) => {
+                                let Ok(permit) = streams.clone().try_acquire_owned() else {
+                                    refuse(&refused, "cloud stream", max_clients);
+                                    continue;
+                                };
                                 tracing::info!(%peer, "cloud stream client connected");
                                 let _ = sock.set_nodelay(true);
-                                tokio::spawn(serve_client(hub.clone(), sock));
+                                let hub = hub.clone();
+                                tokio::spawn(async move {
+                                    serve_client(hub, sock).await;
+                                    drop(permit);
+                                });
                             }
                             Err(e) => {
                                 tracing::warn!("cloud stream accept: {e}");
@@ -495,13 +544,21 @@ impl Listeners {
                 });
             }
             if let Some(l) = stream_unix {
-                let hub = hub.clone();
+                let (hub, streams, refused) = (hub.clone(), streams.clone(), refused.clone());
                 tasks.spawn(async move {
                     loop {
                         match l.accept().await {
                             Ok((sock, _)) => {
+                                let Ok(permit) = streams.clone().try_acquire_owned() else {
+                                    refuse(&refused, "cloud stream", max_clients);
+                                    continue;
+                                };
                                 tracing::info!("cloud stream client connected (unix)");
-                                tokio::spawn(serve_client(hub.clone(), sock));
+                                let hub = hub.clone();
+                                tokio::spawn(async move {
+                                    serve_client(hub, sock).await;
+                                    drop(permit);
+                                });
                             }
                             Err(e) => {
                                 tracing::warn!("cloud stream accept: {e}");
@@ -517,7 +574,15 @@ impl Listeners {
                     loop {
                         match l.accept().await {
                             Ok((sock, _)) => {
-                                tokio::spawn(serve_status(status.clone(), sock));
+                                let Ok(permit) = statuses.clone().try_acquire_owned() else {
+                                    refuse(&refused, "status socket", max_clients);
+                                    continue;
+                                };
+                                let status = status.clone();
+                                tokio::spawn(async move {
+                                    serve_status(status, sock).await;
+                                    drop(permit);
+                                });
                             }
                             Err(e) => {
                                 tracing::warn!("status accept: {e}");

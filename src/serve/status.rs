@@ -144,3 +144,75 @@ pub fn event_line(event: &str, detail: &str) -> String {
     serde_json::json!({"type": "event", "version": VERSION, "event": event, "detail": detail})
         .to_string()
 }
+
+/// Longest status line a client reads (they are a few hundred bytes).
+pub const MAX_LINE_BYTES: usize = 64 << 10;
+
+/// One line of the status socket as a client understands it.
+#[derive(Debug)]
+pub enum Line {
+    Status(Box<Status>),
+    Event { event: String, detail: String },
+}
+
+/// Why a status line could not be used; the line is echoed shortened.
+#[derive(Debug, thiserror::Error)]
+pub enum LineError {
+    #[error("reading the status socket: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("status line longer than {MAX_LINE_BYTES} bytes")]
+    TooLong,
+    #[error("status line is not JSON ({why}): {line}")]
+    NotJson { why: String, line: String },
+    #[error("unexpected status line ({why}): {line}")]
+    Unexpected { why: String, line: String },
+}
+
+/// Reads the next line into `buf` (without its newline) and parses it; `Ok(None)` at
+/// the end of the stream. A line is read at most [`MAX_LINE_BYTES`] long.
+pub fn read_line(
+    r: &mut impl std::io::BufRead,
+    buf: &mut String,
+) -> Result<Option<Line>, LineError> {
+    use std::io::{BufRead, Read};
+    buf.clear();
+    let mut bytes = Vec::new();
+    let n = r
+        .by_ref()
+        .take(MAX_LINE_BYTES as u64 + 1)
+        .read_until(b'\n', &mut bytes)?;
+    if n == 0 {
+        return Ok(None);
+    }
+    if !bytes.ends_with(b"\n") && n > MAX_LINE_BYTES {
+        return Err(LineError::TooLong);
+    }
+    buf.push_str(String::from_utf8_lossy(&bytes).trim_end_matches(['\n', '\r']));
+    parse_line(buf).map(Some)
+}
+
+/// Parses one status line.
+pub fn parse_line(line: &str) -> Result<Line, LineError> {
+    let value: serde_json::Value = serde_json::from_str(line).map_err(|e| LineError::NotJson {
+        why: e.to_string(),
+        line: crate::truncate_echo(line),
+    })?;
+    if value.get("type").and_then(|t| t.as_str()) == Some("status") {
+        let st: Status = serde_json::from_value(value).map_err(|e| LineError::Unexpected {
+            why: e.to_string(),
+            line: crate::truncate_echo(line),
+        })?;
+        return Ok(Line::Status(Box::new(st)));
+    }
+    let text = |k: &str| {
+        value
+            .get(k)
+            .and_then(|e| e.as_str())
+            .unwrap_or(if k == "event" { "?" } else { "" })
+            .to_string()
+    };
+    Ok(Line::Event {
+        event: text("event"),
+        detail: text("detail"),
+    })
+}

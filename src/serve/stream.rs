@@ -192,8 +192,16 @@ fn read_message(r: &mut impl Read) -> Result<Option<(u8, Vec<u8>)>, StreamError>
             why: format!("length {len}"),
         });
     }
-    let mut msg = vec![0u8; len as usize];
-    r.read_exact(&mut msg)?;
+    // Grown as bytes arrive, not sized by the length: a damaged or hostile length
+    // costs what the stream actually carries.
+    let mut msg = Vec::new();
+    r.take(u64::from(len)).read_to_end(&mut msg)?;
+    if msg.len() < len as usize {
+        return Err(StreamError::Malformed {
+            kind: "frame",
+            why: format!("cut off after {} of {len} bytes", msg.len()),
+        });
+    }
     let kind = msg[0];
     msg.remove(0);
     Ok(Some((kind, msg)))

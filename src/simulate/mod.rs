@@ -256,11 +256,20 @@ pub fn builtin_scene_text(name: &str) -> Option<&'static str> {
     }
 }
 
+/// Largest scene file read (the built-in scenes are a few kilobytes).
+pub const MAX_SCENE_FILE_BYTES: u64 = 4 << 20;
+
 /// Loads a scene file.
 pub fn load_scene_file(path: &Path) -> Result<SceneSpec, SimError> {
-    let text = std::fs::read_to_string(path).map_err(|source| SimError::Io {
-        path: path.to_path_buf(),
-        source,
+    let text = crate::config::read_capped(path, MAX_SCENE_FILE_BYTES).map_err(|e| match e {
+        Ok(bytes) => SimError::Invalid {
+            path: path.to_path_buf(),
+            message: format!("{bytes} bytes is not a scene file (at most {MAX_SCENE_FILE_BYTES})"),
+        },
+        Err(source) => SimError::Io {
+            path: path.to_path_buf(),
+            source,
+        },
     })?;
     SceneSpec::from_toml_str(&text, path)
 }

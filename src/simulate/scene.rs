@@ -414,12 +414,12 @@ impl SceneSpec {
             let at = if line_text.is_empty() {
                 String::new()
             } else {
-                format!(" (at `{}`)", line_text.trim())
+                format!(" (at `{}`)", crate::truncate_echo(line_text.trim()))
             };
             SimError::Toml {
                 path: origin.to_path_buf(),
                 line,
-                message: format!("column {col}: {}{at}", e.message()),
+                message: format!("column {col}: {}{at}", crate::truncate_echo(e.message())),
             }
         })?;
         if let Err((section, message)) = spec.validate() {
@@ -484,9 +484,38 @@ impl SceneSpec {
                 self.version
             )));
         }
+        // Every number finite first: a NaN position or focal length would render
+        // nothing and write a camera file crossline itself refuses.
+        if let Some(key) = toml::Value::try_from(self)
+            .ok()
+            .and_then(|v| non_finite(&v, ""))
+        {
+            return Err(bad(format!("`{key}` must be a finite number")));
+        }
         let c = &self.camera;
         if c.width == 0 || c.height == 0 {
             return Err(bad("[camera] `width` and `height` must be positive".into()));
+        }
+        if c.width > MAX_SIDE
+            || c.height > MAX_SIDE
+            || u64::from(c.width) * u64::from(c.height) > MAX_PIXELS
+        {
+            return Err(bad(format!(
+                "[camera] image {}x{} is too large to render (at most {MAX_SIDE} a side, {MAX_PIXELS} pixels)",
+                c.width, c.height
+            )));
+        }
+        if let Some(fx) = c.fx {
+            let side = f64::from(c.width.max(c.height));
+            if !(fx >= (0.01 * side).max(1.0) && fx <= (1000.0 * side).min(1e6)) {
+                return Err(bad(format!(
+                    "[camera] `fx` = {fx}, expected {} to {} px for a {}x{} image",
+                    (0.01 * side).max(1.0),
+                    (1000.0 * side).min(1e6),
+                    c.width,
+                    c.height
+                )));
+            }
         }
         if self.distance() <= 0.0 {
             return Err(bad("[camera] `look_at` must differ from `position`".into()));
@@ -561,6 +590,27 @@ impl SceneSpec {
             })?;
         }
         Ok(())
+    }
+}
+
+/// Largest image side and pixel count a scene renders (8K is 33 M pixels).
+pub const MAX_SIDE: u32 = 16384;
+pub const MAX_PIXELS: u64 = 1 << 26;
+
+/// The dotted key of the first float in `v` that is NaN or infinite.
+fn non_finite(v: &toml::Value, key: &str) -> Option<String> {
+    let join = |k: &str| {
+        if key.is_empty() {
+            k.to_string()
+        } else {
+            format!("{key}.{k}")
+        }
+    };
+    match v {
+        toml::Value::Float(f) if !f.is_finite() => Some(key.to_string()),
+        toml::Value::Table(t) => t.iter().find_map(|(k, v)| non_finite(v, &join(k))),
+        toml::Value::Array(a) => a.iter().find_map(|v| non_finite(v, key)),
+        _ => None,
     }
 }
 
@@ -1421,5 +1471,39 @@ mod tests {
         }
         assert!(lo >= 0.4 - 1e-12 && hi <= 1.0);
         assert!(hi - lo > 0.2, "texture visible: {lo}..{hi}");
+    }
+
+    #[test]
+    fn non_finite_numbers_and_huge_images_are_refused() {
+        let spec = crate::simulate::builtin_scene("bricks").expect("bricks");
+        let mut nan = spec.clone();
+        nan.camera.fx = Some(f64::NAN);
+        let err = nan.validate().expect_err("nan fx").1;
+        assert!(err.contains("camera.fx"), "{err}");
+        let mut nan = spec.clone();
+        nan.camera.position[1] = f64::NAN;
+        let err = nan.validate().expect_err("nan position").1;
+        assert!(err.contains("camera.position"), "{err}");
+        let mut neg = spec.clone();
+        neg.camera.fx = Some(-100.0);
+        assert!(neg.validate().is_err());
+        let huge = spec.clone().with_resolution(100_000, 100_000);
+        let err = huge.validate().expect_err("huge").1;
+        assert!(err.contains("too large"), "{err}");
+    }
+
+    #[test]
+    fn a_long_bad_line_is_echoed_shortened() {
+        let deep = format!(
+            "version = 1\nx = {}{}\n",
+            "[".repeat(10_000),
+            "]".repeat(10_000)
+        );
+        let err = SceneSpec::from_toml_str(&deep, Path::new("deep.toml")).expect_err("deep");
+        assert!(
+            err.to_string().len() < 1000,
+            "{} bytes",
+            err.to_string().len()
+        );
     }
 }

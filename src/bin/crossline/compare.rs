@@ -176,9 +176,9 @@ fn run_reference(args: &Args, cloud: &Cloud, reference_path: &Path) -> anyhow::R
     );
     let json = serde_json::to_string_pretty(&report).context("serialising the report")?;
     if args.json {
-        println!("{json}");
+        crate::outln!("{json}");
     } else {
-        print_reference_summary(args, cloud, &reference, &result, reference_path);
+        print_reference_summary(args, cloud, &reference, &result, reference_path)?;
     }
     if let Some(prefix) = &args.out {
         let s = &result.stats;
@@ -215,7 +215,7 @@ fn run_reference(args: &Args, cloud: &Cloud, reference_path: &Path) -> anyhow::R
         std::fs::write(&json_path, format!("{json}\n"))
             .with_context(|| format!("writing report {}", json_path.display()))?;
         if !args.json {
-            println!("wrote      {written}, {}", json_path.display());
+            crate::outln!("wrote      {written}, {}", json_path.display());
         }
     }
     Ok(ExitCode::SUCCESS)
@@ -312,7 +312,7 @@ fn short(v: f64) -> String {
     format!("{v:.decimals$}")
 }
 
-fn print_stats(stats: &ErrorStats, unit: &str) {
+fn print_stats(stats: &ErrorStats, unit: &str) -> anyhow::Result<()> {
     for (name, v) in [
         ("mean", stats.mean),
         ("median", stats.median),
@@ -321,15 +321,16 @@ fn print_stats(stats: &ErrorStats, unit: &str) {
         ("p99", stats.p99),
         ("max", stats.max),
     ] {
-        println!("  {name:<10}{:>14}{unit}", short(v));
+        crate::outln!("  {name:<10}{:>14}{unit}", short(v));
     }
     for e in &stats.over {
-        println!(
+        crate::outln!(
             "  > {:<8}{:>13.3} % of points",
             short(e.threshold),
             100.0 * e.fraction
         );
     }
+    Ok(())
 }
 
 fn print_reference_summary(
@@ -338,24 +339,24 @@ fn print_reference_summary(
     reference: &Cloud,
     result: &compare::ReferenceComparison,
     reference_path: &Path,
-) {
+) -> anyhow::Result<()> {
     let a = &result.alignment;
     let t = &a.transform;
-    println!(
+    crate::outln!(
         "cloud      {} ({} points)",
         args.cloud.display(),
         cloud.len()
     );
-    println!(
+    crate::outln!(
         "reference  {} ({} points, bounding-box diagonal {})",
         reference_path.display(),
         reference.len(),
         short(result.reference_diagonal)
     );
     match a.mode {
-        AlignMode::None => println!("alignment  none"),
+        AlignMode::None => crate::outln!("alignment  none"),
         mode => {
-            println!(
+            crate::outln!(
                 "alignment  {}: scale {:.6}, {} iterations, {} pairs kept, pair rms {}",
                 mode_name(mode),
                 t.scale,
@@ -365,7 +366,7 @@ fn print_reference_summary(
             );
             if mode == AlignMode::Similarity {
                 let r = &t.rotation;
-                println!(
+                crate::outln!(
                     "           rotation {:.4}° ; translation ({}, {}, {})",
                     t.angle().to_degrees(),
                     short(t.translation.x),
@@ -373,7 +374,7 @@ fn print_reference_summary(
                     short(t.translation.z)
                 );
                 for i in 0..3 {
-                    println!(
+                    crate::outln!(
                         "           [{:>10.6} {:>10.6} {:>10.6}]",
                         r[(i, 0)],
                         r[(i, 1)],
@@ -383,12 +384,12 @@ fn print_reference_summary(
             }
         }
     }
-    println!(
+    crate::outln!(
         "distances  to the nearest reference point, reference units ({} of {} points)",
         result.stats.count,
         cloud.len()
     );
-    print_stats(&result.stats, "");
+    print_stats(&result.stats, "")
 }
 
 #[cfg(test)]

@@ -151,7 +151,7 @@ enum Line<'a> {
 impl Line<'_> {
     fn print(&self) -> anyhow::Result<()> {
         let text = serde_json::to_string(self).context("cannot format JSON")?;
-        println!("{text}");
+        crate::outln!("{text}");
         Ok(())
     }
 }

@@ -102,6 +102,9 @@ pub struct Args {
     threads: Option<usize>,
 }
 
+/// Most frames one run renders (the truth of each is kept in memory).
+const MAX_FRAMES: usize = 1_000_000;
+
 /// The scene named by --scene: a built-in or a file.
 fn load_scene(name: &str) -> anyhow::Result<SceneSpec> {
     if let Some(spec) = builtin_scene(name) {
@@ -120,6 +123,9 @@ fn load_scene(name: &str) -> anyhow::Result<SceneSpec> {
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if args.describe && args.random.is_none() {
         bail!("--describe describes a --random draw: give --random SEED");
+    }
+    if !(1..=MAX_FRAMES).contains(&args.frames) {
+        bail!("--frames {}: expected 1 to {MAX_FRAMES}", args.frames);
     }
     let mut drawn: Option<DrawnScan> = args.random.map(|seed| random::draw(seed, args.frames));
     let format = match args.format.as_deref() {

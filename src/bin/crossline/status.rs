@@ -1,12 +1,12 @@
 //! `crossline status`: tail the daemon's status socket.
 
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufReader, Write};
 use std::os::unix::net::UnixStream;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::Context;
-use crossline::serve::status::Status;
+use crossline::serve::status as wire;
 
 /// Show what a running `crossline serve` is doing: device state, frames in, dropped and
 /// processed, planes solved, the cloud's epoch and size, stream clients, recording.
@@ -46,21 +46,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         )
     })?;
     let mut out = std::io::stdout().lock();
-    for line in BufReader::new(sock).lines() {
-        let line = line.context("reading the status socket")?;
-        let value: serde_json::Value = serde_json::from_str(&line)
-            .with_context(|| format!("status line is not JSON: {line}"))?;
-        let is_status = value.get("type").and_then(|t| t.as_str()) == Some("status");
+    let mut reader = BufReader::new(sock);
+    let mut text = String::new();
+    while let Some(line) = wire::read_line(&mut reader, &mut text)? {
+        let is_status = matches!(line, wire::Line::Status(_));
         if args.json {
-            writeln!(out, "{line}")?;
-        } else if is_status {
-            let st: Status = serde_json::from_value(value)
-                .with_context(|| format!("unexpected status line: {line}"))?;
-            writeln!(out, "{}", st.summary())?;
+            writeln!(out, "{text}")?;
         } else {
-            let event = value.get("event").and_then(|e| e.as_str()).unwrap_or("?");
-            let detail = value.get("detail").and_then(|e| e.as_str()).unwrap_or("");
-            writeln!(out, "event {event}: {detail}")?;
+            match line {
+                wire::Line::Status(st) => writeln!(out, "{}", st.summary())?,
+                wire::Line::Event { event, detail } => writeln!(out, "event {event}: {detail}")?,
+            }
         }
         out.flush()?;
         if args.once && is_status {

@@ -51,29 +51,32 @@ pub(super) fn run(args: &Args, cloud: &Cloud, dir: &Path) -> anyhow::Result<Exit
     );
     let json = serde_json::to_string_pretty(&full).context("serialising the report")?;
     if args.json {
-        println!("{json}");
+        crate::outln!("{json}");
     } else {
         let r = &full.truth;
-        println!("cloud      {} ({} points)", args.cloud.display(), r.points);
-        println!("truth      {}", dir.display());
-        println!(
+        crate::outln!("cloud      {} ({} points)", args.cloud.display(), r.points);
+        crate::outln!("truth      {}", dir.display());
+        crate::outln!(
             "points     {} evaluated, {} with no surface on their ray, {} invalid",
-            r.evaluated, r.no_surface, r.invalid
+            r.evaluated,
+            r.no_surface,
+            r.invalid
         );
-        println!(
+        crate::outln!(
             "scale      {:.6} (median start {:.6})",
-            r.scale, r.scale_median
+            r.scale,
+            r.scale_median
         );
-        println!(
+        crate::outln!(
             "outliers   {:.3} % over {} % relative depth error",
             100.0 * r.outlier_fraction,
             100.0 * r.outlier_relative
         );
-        println!("relative depth error |s·Z − Z_true| / Z_true");
-        print_stats(&r.relative_error, "");
-        print_planes(r, cloud);
+        crate::outln!("relative depth error |s·Z − Z_true| / Z_true");
+        print_stats(&r.relative_error, "")?;
+        print_planes(r, cloud)?;
         if let Some(u) = &r.uncertainty {
-            println!(
+            crate::outln!(
                 "deviation  planes' errors in their own depth_sigma: median {:.2} (0.67 if \
                  honest); {} of {} planes over 3, carrying {:.3} % of the points",
                 u.median_z,
@@ -82,14 +85,14 @@ pub(super) fn run(args: &Args, cloud: &Cloud, dir: &Path) -> anyhow::Result<Exit
                 100.0 * u.points_on_planes_over_3_fraction
             );
         }
-        println!(
+        crate::outln!(
             "coverage   {:.2} % of {} lit pixels have a point within {} px",
             100.0 * r.coverage.fraction,
             r.coverage.lit_pixels,
             r.coverage.radius_px
         );
         if let Some(v) = &r.coverage_visible {
-            println!(
+            crate::outln!(
                 "           {:.2} % of the {} where the stripe was visible (peak >= 5 x noise)",
                 100.0 * v.fraction,
                 v.lit_pixels
@@ -125,14 +128,14 @@ pub(super) fn run(args: &Args, cloud: &Cloud, dir: &Path) -> anyhow::Result<Exit
         std::fs::write(&json_path, format!("{json}\n"))
             .with_context(|| format!("writing report {}", json_path.display()))?;
         if !args.json {
-            println!("wrote      {written}, {}", json_path.display());
+            crate::outln!("wrote      {written}, {}", json_path.display());
         }
     }
     Ok(ExitCode::SUCCESS)
 }
 
 /// The wrong-plane counts of the summary, or why there are none.
-fn print_planes(r: &compare::TruthReport, cloud: &Cloud) {
+fn print_planes(r: &compare::TruthReport, cloud: &Cloud) -> anyhow::Result<()> {
     let bound = 100.0 * r.wrong_plane_relative;
     match (
         r.planes_evaluated,
@@ -141,7 +144,7 @@ fn print_planes(r: &compare::TruthReport, cloud: &Cloud) {
         r.points_on_wrong_planes_fraction,
     ) {
         (Some(planes), Some(wrong), Some(points), Some(fraction)) => {
-            println!(
+            crate::outln!(
                 "planes     {wrong} of {planes} wrong (median error over {bound} %), \
                  carrying {points} points: {:.3} % of the evaluated",
                 100.0 * fraction
@@ -153,12 +156,13 @@ fn print_planes(r: &compare::TruthReport, cloud: &Cloud) {
                 (false, true) => "`frame` property",
                 _ => "`laser` property",
             };
-            println!(
+            crate::outln!(
                 "planes     not evaluated: the cloud has no per-point {missing} \
                  (the PLY that `reconstruct` writes has both)"
             );
         }
     }
+    Ok(())
 }
 
 /// The ground truth of a folder written by `crossline simulate`.

@@ -1,0 +1,121 @@
+//! The real binary under faults the issue of reliability found: a closed stdout, more
+//! stream clients than the cap, a second daemon on the same out_dir.
+
+use std::io::Read;
+use std::os::unix::net::UnixStream;
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+
+use crate::util::{crossline, fixtures};
+
+fn dump() -> std::path::PathBuf {
+    fixtures().join("sim-bricks/frames.dump")
+}
+
+#[test]
+fn a_closed_stdout_ends_inspect_quietly_with_success() {
+    for args in [
+        vec![
+            "inspect".to_string(),
+            "--frames".into(),
+            dump().display().to_string(),
+        ],
+        vec!["inspect".into(), dump().display().to_string()],
+    ] {
+        let mut child = crossline()
+            .args(&args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("spawn");
+        // `| head` that has already gone: the read end is closed before any write.
+        drop(child.stdout.take());
+        let out = child.wait_with_output().expect("wait");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{args:?}: {}: {stderr}", out.status);
+        assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+        assert!(!stderr.contains("Broken pipe"), "{args:?}: {stderr}");
+    }
+}
+
+#[test]
+fn stream_clients_over_the_cap_are_closed_and_the_scan_is_still_written() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path();
+    let config = dir.join("c.toml");
+    std::fs::write(&config, "[serve]\nstream_clients_max = 2\n").expect("config");
+    let child = crossline()
+        .arg("serve")
+        .arg("--camera")
+        .arg(fixtures().join("sim-bricks/camera.yml"))
+        .arg("--replay")
+        .arg(dump())
+        .args(["--rate", "realtime"])
+        .arg("--config")
+        .arg(&config)
+        .arg("--out-dir")
+        .arg(dir.join("out"))
+        .arg("--out")
+        .arg(dir.join("cloud.ply"))
+        .arg("--report")
+        .arg(dir.join("report.json"))
+        .arg("--status-socket")
+        .arg(dir.join("status.sock"))
+        .arg("--stream-unix")
+        .arg(dir.join("cloud.sock"))
+        .args(["--stream-tcp", ""])
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn serve");
+    let sock = dir.join("cloud.sock");
+    let t = Instant::now();
+    while !sock.exists() {
+        assert!(t.elapsed() < Duration::from_secs(30), "no socket");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    // The socket is never reachable by others than owner and group.
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata(&sock).expect("meta").permissions().mode() & 0o777;
+    assert_eq!(mode, 0o660, "{mode:o}");
+    // A second daemon on the same out_dir is refused, naming the first.
+    let second = crossline()
+        .arg("serve")
+        .arg("--camera")
+        .arg(fixtures().join("sim-bricks/camera.yml"))
+        .arg("--replay")
+        .arg(dump())
+        .arg("--out-dir")
+        .arg(dir.join("out"))
+        .args(["--stream-tcp", "", "--status-socket", ""])
+        .output()
+        .expect("second");
+    let msg = String::from_utf8_lossy(&second.stderr);
+    assert!(!second.status.success(), "{msg}");
+    assert!(msg.contains(&format!("pid {}", child.id())), "{msg}");
+    // Five clients, two served: the other three are closed without a HELLO.
+    let clients: Vec<UnixStream> = (0..5)
+        .map(|_| {
+            let c = UnixStream::connect(&sock).expect("connect");
+            c.set_read_timeout(Some(Duration::from_secs(20)))
+                .expect("timeout");
+            std::thread::sleep(Duration::from_millis(50));
+            c
+        })
+        .collect();
+    let mut served = 0;
+    let mut closed = 0;
+    for mut c in clients {
+        let mut first = [0u8; 5];
+        match c.read(&mut first) {
+            Ok(0) => closed += 1,
+            Ok(_) => served += 1,
+            Err(e) => panic!("client read: {e}"),
+        }
+    }
+    assert_eq!((served, closed), (2, 3));
+    let out = child.wait_with_output().expect("wait");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("stream_clients_max"), "{stderr}");
+    assert!(dir.join("cloud.ply").exists() && dir.join("report.json").exists());
+}
