@@ -53,13 +53,7 @@ fn main() {
         };
         let cam = sim.camera().clone();
         let params = ExtractParams {
-            lasers: drawn
-                .spec
-                .projector
-                .colours
-                .iter()
-                .filter_map(|c| LaserColour::preset(c.name()).map(|mut v| v.remove(0)))
-                .collect(),
+            lasers: LaserColour::named(drawn.spec.projector.colours.iter().map(|c| c.name())),
             ..ExtractParams::default()
         };
         let Ok(mut extractor) = Extractor::new(&params, &cam) else {

@@ -51,6 +51,15 @@ impl LaserColour {
         })
     }
 
+    /// One laser per single-colour name (`red`, `green`, `blue`), in order; other names
+    /// are left out. For a projector described by its lasers' colour names.
+    pub fn named<'a>(names: impl IntoIterator<Item = &'a str>) -> Vec<Self> {
+        names
+            .into_iter()
+            .filter_map(|n| Self::preset(n).map(|mut v| v.remove(0)))
+            .collect()
+    }
+
     pub fn red() -> Self {
         Self {
             name: "red".into(),

@@ -198,13 +198,7 @@ fn realistic_frames_without_background() {
         let sim = Simulator::new(&drawn.spec, &drawn.params).expect("sim");
         let cam = sim.camera().clone();
         let params = ExtractParams {
-            lasers: drawn
-                .spec
-                .projector
-                .colours
-                .iter()
-                .filter_map(|c| LaserColour::preset(c.name()).map(|mut v| v.remove(0)))
-                .collect(),
+            lasers: LaserColour::named(drawn.spec.projector.colours.iter().map(|c| c.name())),
             ..ExtractParams::default()
         };
         let mut ex = Extractor::new(&params, &cam).expect("extractor");
