@@ -13,16 +13,16 @@ use serde_json::Value;
 
 use crate::util::{crossline, fixtures, run_ok, stderr_of_failure};
 
-fn dump() -> PathBuf {
+pub(crate) fn dump() -> PathBuf {
     fixtures().join("sim-bricks/frames.dump")
 }
 
-fn camera() -> PathBuf {
+pub(crate) fn camera() -> PathBuf {
     fixtures().join("sim-bricks/camera.yml")
 }
 
 /// `crossline serve --replay DUMP` with its sockets and outputs under `dir`.
-fn serve(dir: &Path, input: &Path, rate: &str) -> Command {
+pub(crate) fn serve(dir: &Path, input: &Path, rate: &str) -> Command {
     let mut cmd = crossline();
     cmd.arg("serve")
         .arg("--camera")
@@ -44,7 +44,7 @@ fn serve(dir: &Path, input: &Path, rate: &str) -> Command {
     cmd
 }
 
-fn wait_for(path: &Path, within: Duration) {
+pub(crate) fn wait_for(path: &Path, within: Duration) {
     let t = Instant::now();
     while !path.exists() {
         assert!(t.elapsed() < within, "{} did not appear", path.display());

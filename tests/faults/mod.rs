@@ -4,13 +4,10 @@
 use std::io::Read;
 use std::os::unix::net::UnixStream;
 use std::process::Stdio;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use crate::util::{crossline, fixtures};
-
-fn dump() -> std::path::PathBuf {
-    fixtures().join("sim-bricks/frames.dump")
-}
+use crate::daemon::{camera, dump, serve, wait_for};
+use crate::util::crossline;
 
 #[test]
 fn a_closed_stdout_ends_inspect_quietly_with_success() {
@@ -44,35 +41,14 @@ fn stream_clients_over_the_cap_are_closed_and_the_scan_is_still_written() {
     let dir = tmp.path();
     let config = dir.join("c.toml");
     std::fs::write(&config, "[serve]\nstream_clients_max = 2\n").expect("config");
-    let child = crossline()
-        .arg("serve")
-        .arg("--camera")
-        .arg(fixtures().join("sim-bricks/camera.yml"))
-        .arg("--replay")
-        .arg(dump())
-        .args(["--rate", "realtime"])
+    let child = serve(dir, &dump(), "realtime")
         .arg("--config")
         .arg(&config)
-        .arg("--out-dir")
-        .arg(dir.join("out"))
-        .arg("--out")
-        .arg(dir.join("cloud.ply"))
-        .arg("--report")
-        .arg(dir.join("report.json"))
-        .arg("--status-socket")
-        .arg(dir.join("status.sock"))
-        .arg("--stream-unix")
-        .arg(dir.join("cloud.sock"))
-        .args(["--stream-tcp", ""])
         .stderr(Stdio::piped())
         .spawn()
         .expect("spawn serve");
     let sock = dir.join("cloud.sock");
-    let t = Instant::now();
-    while !sock.exists() {
-        assert!(t.elapsed() < Duration::from_secs(30), "no socket");
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    wait_for(&sock, Duration::from_secs(30));
     // The socket is never reachable by others than owner and group.
     use std::os::unix::fs::PermissionsExt;
     let mode = std::fs::metadata(&sock).expect("meta").permissions().mode() & 0o777;
@@ -81,7 +57,7 @@ fn stream_clients_over_the_cap_are_closed_and_the_scan_is_still_written() {
     let second = crossline()
         .arg("serve")
         .arg("--camera")
-        .arg(fixtures().join("sim-bricks/camera.yml"))
+        .arg(camera())
         .arg("--replay")
         .arg(dump())
         .arg("--out-dir")
