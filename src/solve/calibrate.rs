@@ -247,7 +247,6 @@ pub fn calibrate_from(
     // crossings reject them.
     let sub = evidence.clone();
     let plane_map: Vec<Option<u32>> = (0..evidence.planes.len() as u32).map(Some).collect();
-    let sub_planes = planes.clone();
     // The crossings' spread to start from: the linear start's, or a tenth of a pixel.
     let sigma_px = if start.sigma_img > 0.0 {
         (start.sigma_img * evidence.focal_px).max(1e-3)
@@ -262,8 +261,10 @@ pub fn calibrate_from(
     // start's crosses, refined jointly; the start's own first, with the spreads measured,
     // the others under its spreads, and fully only where they compete with it.
     let mut estimates: Vec<Estimate> = Vec::new();
-    for w in shift_candidates(&sub, &sub_planes) {
-        let shifted: Vec<Option<V3>> = sub_planes.iter().map(|p| p.map(|v| v + w)).collect();
+    // The first estimate's cost under its own spreads, once it exists.
+    let mut first_cost = None;
+    for w in shift_candidates(&sub, &planes) {
+        let shifted: Vec<Option<V3>> = planes.iter().map(|p| p.map(|v| v + w)).collect();
         let Some((poses, _)) = init::poses_from_planes(&sub, &shifted) else {
             continue;
         };
@@ -285,9 +286,8 @@ pub fn calibrate_from(
         match estimate::estimate(&sub, &start, &params_here) {
             Ok(mut est) => {
                 normalise_scale(&sub, &mut est);
-                if let Some(first) = estimates.first() {
-                    let delta = estimate::cost_at(&sub, &est, &first.spreads, &eparams)
-                        - estimate::cost_at(&sub, first, &first.spreads, &eparams);
+                if let (Some(first), Some(base)) = (estimates.first(), first_cost) {
+                    let delta = estimate::cost_at(&sub, &est, &first.spreads, &eparams) - base;
                     if delta < AMBIGUOUS_CHI2 {
                         // It competes: measure its own spreads too.
                         let again = Start {
@@ -300,6 +300,9 @@ pub fn calibrate_from(
                             est = full;
                         }
                     }
+                }
+                if first_cost.is_none() {
+                    first_cost = Some(estimate::cost_at(&sub, &est, &est.spreads, &eparams));
                 }
                 estimates.push(est);
             }
