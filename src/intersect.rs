@@ -145,15 +145,38 @@ impl SegmentIndex {
 
     /// As [`Self::insert`], appending to `out`.
     pub fn insert_into(&mut self, curve_id: u32, polyline: &[[f64; 2]], out: &mut Vec<Crossing>) {
+        let Some((cell, segments)) = self.segments_of(curve_id, polyline) else {
+            return;
+        };
+        self.query_segments(cell, curve_id, &segments, out);
+        self.add_segments(cell, segments);
+    }
+
+    /// The crossings of `polyline` (as curve `curve_id`) with the curves inserted so far,
+    /// appended to `out`, without inserting it.
+    pub fn query_into(&mut self, curve_id: u32, polyline: &[[f64; 2]], out: &mut Vec<Crossing>) {
+        if let Some((cell, segments)) = self.segments_of(curve_id, polyline) {
+            self.query_segments(cell, curve_id, &segments, out);
+        }
+    }
+
+    /// Inserts curve `curve_id` without looking for its crossings.
+    pub fn add(&mut self, curve_id: u32, polyline: &[[f64; 2]]) {
+        if let Some((cell, segments)) = self.segments_of(curve_id, polyline) {
+            self.add_segments(cell, segments);
+        }
+    }
+
+    /// The cell size (fixed by the first curve if not yet) and the curve's segments,
+    /// those too long to index counted and left out.
+    fn segments_of(&mut self, curve_id: u32, polyline: &[[f64; 2]]) -> Option<(f64, Vec<Segment>)> {
         let cell = match self.cell {
             Some(c) => c,
-            None => match median_segment_length(std::iter::once(polyline)) {
-                Some(m) => {
-                    self.cell = Some(CELL_PER_SEGMENT * m);
-                    CELL_PER_SEGMENT * m
-                }
-                None => return,
-            },
+            None => {
+                let m = median_segment_length(std::iter::once(polyline))?;
+                self.cell = Some(CELL_PER_SEGMENT * m);
+                CELL_PER_SEGMENT * m
+            }
         };
         let n_seg = polyline.len().saturating_sub(1);
         let mut new_segments = Vec::with_capacity(n_seg);
@@ -180,7 +203,17 @@ impl SegmentIndex {
             }
             new_segments.push(seg);
         }
-        for seg in &new_segments {
+        Some((cell, new_segments))
+    }
+
+    fn query_segments(
+        &self,
+        cell: f64,
+        curve_id: u32,
+        segments: &[Segment],
+        out: &mut Vec<Crossing>,
+    ) {
+        for seg in segments {
             let (c0, c1) = Self::bbox_cells(cell, seg);
             for cx in c0.0..=c1.0 {
                 for cy in c0.1..=c1.1 {
@@ -209,7 +242,10 @@ impl SegmentIndex {
                 }
             }
         }
-        for seg in new_segments {
+    }
+
+    fn add_segments(&mut self, cell: f64, segments: Vec<Segment>) {
+        for seg in segments {
             let id = self.segments.len() as u32;
             let (c0, c1) = Self::bbox_cells(cell, &seg);
             for cx in c0.0..=c1.0 {

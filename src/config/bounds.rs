@@ -28,6 +28,7 @@ pub const BOUNDS: &[(&str, f64, f64)] = &[
     ("extract.lasers.display_rgb", 0.0, 255.0),
     ("intersect.refine_radius_px", 0.0, 1000.0),
     ("solve.max_global_planes", 1.0, 100_000.0),
+    ("solve.max_anchor_poses", 2.0, 5_000.0),
     ("solve.min_crossings_per_plane", 1.0, 10_000.0),
     ("solve.min_global_crossings", 1.0, 1e7),
     ("solve.min_sin_angle", 0.0, 1.0),

@@ -10,8 +10,9 @@
 //!
 //! # Stages
 //! 1. [`Scan::add_frame`]: a frame's curves become one plane per laser
-//!    ([`planes::PlaneCurves`]); their crossings with every earlier curve are found in the
-//!    segment index (curves of one plane do not constrain it).
+//!    ([`planes::PlaneCurves`]); their crossings are found in the segment indices (curves
+//!    of one plane do not constrain it): an anchor's ([`anchors`]) with every earlier
+//!    curve, any other frame's with the anchors' curves and its own.
 //! 2. [`Scan::refine_crossings`]: crossings found on the simplified polylines move to the
 //!    curves' dense points.
 //! 3. [`Scan::evidence`]: the crossings as the estimator sees them: crossings of two
@@ -20,6 +21,7 @@
 //! 5. [`triangulate::cloud`]: every point whose depth its plane determines to
 //!    `[triangulate] max_depth_sigma`, and that its crossings do not dispute.
 
+pub mod anchors;
 pub mod planes;
 pub mod report;
 pub mod triangulate;
@@ -76,7 +78,15 @@ pub struct Scan {
     /// Per curve (global id, in plane order): its plane and its index in that plane.
     curve_plane: Vec<u32>,
     curve_local: Vec<u32>,
+    /// Every curve so far, and the anchors' curves only.
     index: SegmentIndex,
+    anchor_index: SegmentIndex,
+    anchors: anchors::Anchors,
+    /// The index cell (normalised units) and least crossing sine, to rebuild the anchors'.
+    index_cell: f64,
+    min_sin_angle: f64,
+    /// Per plane, the global id of its first curve.
+    plane_first_curve: Vec<u32>,
     /// Crossings of planes (`a`, `b` are plane ids) and the curves they are of.
     crossings: Vec<Crossing>,
     curve_ids: Vec<[u32; 2]>,
@@ -87,17 +97,26 @@ pub struct Scan {
 
 impl Scan {
     pub fn new(camera: &Camera, config: &Config) -> Self {
+        let index = SegmentIndex::for_image(
+            camera.width,
+            camera.height,
+            camera.fx.max(camera.fy),
+            config.solve.min_sin_angle,
+        );
+        let index_cell = f64::from(camera.width.max(camera.height))
+            / crate::intersect::IMAGE_CELLS
+            / camera.fx.max(camera.fy);
         Self {
             frames: 0,
             planes: Vec::new(),
             curve_plane: Vec::new(),
             curve_local: Vec::new(),
-            index: SegmentIndex::for_image(
-                camera.width,
-                camera.height,
-                camera.fx.max(camera.fy),
-                config.solve.min_sin_angle,
-            ),
+            anchor_index: index.clone(),
+            index,
+            anchors: anchors::Anchors::new(config.solve.max_anchor_poses),
+            index_cell,
+            min_sin_angle: config.solve.min_sin_angle,
+            plane_first_curve: Vec::new(),
             crossings: Vec::new(),
             curve_ids: Vec::new(),
             refined: 0,
@@ -121,20 +140,35 @@ impl Scan {
         self.crossings.len()
     }
 
-    /// Adds the next frame's curves: its planes, and their crossings with every curve so
-    /// far (not yet refined).
+    /// Adds the next frame's curves: its planes, and their crossings (see the module
+    /// docs; not yet refined).
     pub fn add_frame(&mut self, curves: Vec<Curve>) {
         let frame = self.frames as u32;
         self.frames += 1;
+        let admission = self.anchors.next_frame(!curves.is_empty());
+        if admission.thinned {
+            self.rebuild_anchor_index();
+        }
+        // A frame's own two lasers cross each other, at the cross's centre.
+        let mut own = SegmentIndex::with_cell_size(self.index_cell, self.min_sin_angle);
         for plane in PlaneCurves::of_frame(frame, curves) {
             let id = self.planes.len() as u32;
+            self.plane_first_curve.push(self.curve_plane.len() as u32);
             for (local, curve) in plane.curves.iter().enumerate() {
                 let cid = self.curve_plane.len() as u32;
                 self.curve_plane.push(id);
                 self.curve_local.push(local as u32);
                 self.fresh.clear();
-                self.index
-                    .insert_into(cid, &curve.polyline, &mut self.fresh);
+                if admission.anchor {
+                    self.index
+                        .insert_into(cid, &curve.polyline, &mut self.fresh);
+                    self.anchor_index.add(cid, &curve.polyline);
+                } else {
+                    self.anchor_index
+                        .query_into(cid, &curve.polyline, &mut self.fresh);
+                    own.insert_into(cid, &curve.polyline, &mut self.fresh);
+                    self.index.add(cid, &curve.polyline);
+                }
                 for c in &self.fresh {
                     let (pa, pb) = (
                         self.curve_plane[c.a as usize],
@@ -148,6 +182,19 @@ impl Scan {
             }
             self.planes.push(plane);
         }
+    }
+
+    /// The anchors' index anew, after the schedule thinned them.
+    fn rebuild_anchor_index(&mut self) {
+        let mut index = SegmentIndex::with_cell_size(self.index_cell, self.min_sin_angle);
+        for (p, plane) in self.planes.iter().enumerate() {
+            if self.anchors.is_anchor(plane.frame) {
+                for (local, curve) in plane.curves.iter().enumerate() {
+                    index.add(self.plane_first_curve[p] + local as u32, &curve.polyline);
+                }
+            }
+        }
+        self.anchor_index = index;
     }
 
     /// Refines the crossings found since the last call on the curves' dense points
@@ -229,9 +276,16 @@ impl Scan {
         curve_crossings: &[cloud::CurveCrossing],
         faint: &[bool],
     ) -> (Evidence, Vec<Option<u32>>) {
+        let frame_of = |plane: u32| self.planes[plane as usize].frame;
+        // A crossing of two frames neither of which is an anchor (any more) ties two
+        // poses that are each fitted on their own: it is left to the crossing check.
+        let tied = |c: &Crossing| {
+            let (fa, fb) = (frame_of(c.a), frame_of(c.b));
+            fa == fb || self.anchors.is_anchor(fa) || self.anchors.is_anchor(fb)
+        };
         let mut used = vec![false; self.planes.len()];
         for c in &self.crossings {
-            if c.sin_angle >= config.solve.min_sin_angle {
+            if c.sin_angle >= config.solve.min_sin_angle && tied(c) {
                 used[c.a as usize] = true;
                 used[c.b as usize] = true;
             }
@@ -259,7 +313,7 @@ impl Scan {
             .crossings
             .iter()
             .zip(curve_crossings)
-            .filter(|(c, _)| c.sin_angle >= config.solve.min_sin_angle)
+            .filter(|(c, _)| c.sin_angle >= config.solve.min_sin_angle && tied(c))
             .filter_map(|(c, cc)| {
                 let strong = !faint[cc.a as usize]
                     && !faint[cc.b as usize]
@@ -277,7 +331,12 @@ impl Scan {
                 })
             })
             .collect();
+        let anchors = pose_frames
+            .iter()
+            .map(|&f| self.anchors.is_anchor(f))
+            .collect();
         let evidence = Evidence {
+            anchors,
             pose_frames,
             planes: slots,
             crossings,

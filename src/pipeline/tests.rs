@@ -183,3 +183,41 @@ fn planes_most_curves_contradict_are_doubtful() {
     assert!(wrong.contains("205310 points"), "{wrong}");
     assert_eq!(super::contradicted(&stats(449_423, 77_947)), None);
 }
+
+/// With 15 anchors among 60 frames, the others are crossed with the anchors only and
+/// each fitted against them: the cloud is as complete and as exact as with every frame an
+/// anchor (all but a few planes), from fewer crossings.
+#[test]
+fn frames_fitted_against_anchors_are_as_exact_as_joint_ones() {
+    let camera = camera();
+    let (scan, per_frame) = frames_of(&camera);
+    let all = run(per_frame.clone(), &camera, &Config::default()).report;
+    let mut config = Config::default();
+    config.solve.max_anchor_poses = 24;
+    let rec = run(per_frame, &camera, &config);
+    let r = &rec.report;
+    assert!(
+        5 * r.crossings < 4 * all.crossings,
+        "{} of {}",
+        r.crossings,
+        all.crossings
+    );
+    // A few planes that the fifteen anchors' crossings do not tie down are left out;
+    // none is wrong.
+    assert!(
+        r.planes_solved as f64 >= 0.95 * all.planes_solved as f64,
+        "{r:?}"
+    );
+    assert!(
+        r.points as f64 > 0.95 * all.points as f64,
+        "{} of {}",
+        r.points,
+        all.points
+    );
+    let worst = worst_off_surface(&scan.scene, &rec.cloud.points);
+    assert!(
+        worst < 1e-3,
+        "a point {:.3} % off the surface",
+        100.0 * worst
+    );
+}

@@ -20,6 +20,7 @@
 use nalgebra::Vector3;
 use serde::Serialize;
 
+use super::conditional::{self, AnchorSplit};
 use super::estimate::{self, Estimate, EstimateParams, Spreads, Start};
 use super::evidence::{CrossingClass, Evidence, Observation, Ray};
 use super::{init, Problem, SolveError, SolveParams};
@@ -92,11 +93,9 @@ const CANDIDATE_COST_RATIO: f64 = 4.0;
 pub struct Calibration {
     /// The estimate (see [`calibrate`]).
     pub estimate: Estimate,
-    /// The evidence the estimate was made on.
+    /// The evidence the estimate was made on (the caller's).
     pub evidence: Evidence,
-    /// Per plane of the caller's evidence, its index in [`Self::evidence`].
-    pub plane_map: Vec<Option<u32>>,
-    /// Per plane of the caller's evidence.
+    /// Per plane of the evidence.
     pub verdicts: Vec<PlaneVerdict>,
     pub summary: CalibrationSummary,
 }
@@ -108,7 +107,7 @@ impl Calibration {
         if self.verdicts.get(i) != Some(&PlaneVerdict::Determined) {
             return None;
         }
-        let slot = self.evidence.planes[self.plane_map[i]? as usize];
+        let slot = self.evidence.planes.get(i)?;
         self.estimate.poses[slot.pose as usize].plane(usize::from(slot.laser))
     }
 
@@ -121,10 +120,9 @@ impl Calibration {
     /// One standard deviation of the relative depth of a point along `ray` on plane `i`
     /// (of the caller's evidence); infinite for a plane not estimated.
     pub fn depth_sigma(&self, i: usize, ray: &Ray) -> f64 {
-        let Some(k) = self.plane_map.get(i).copied().flatten() else {
+        let Some(slot) = self.evidence.planes.get(i) else {
             return f64::INFINITY;
         };
-        let slot = self.evidence.planes[k as usize];
         self.estimate
             .depth_sigma(slot.pose as usize, usize::from(slot.laser), ray)
     }
@@ -210,23 +208,27 @@ pub fn calibrate_from(
     given: Option<&[Option<V3>]>,
 ) -> Result<Calibration, SolveError> {
     evidence.validate().map_err(SolveError::InvalidProblem)?;
-    let (start, planes) = match given {
-        Some(planes) => {
-            if planes.len() != evidence.planes.len() {
-                return Err(SolveError::InvalidProblem(format!(
-                    "{} start planes for {} planes",
-                    planes.len(),
-                    evidence.planes.len()
-                )));
-            }
-            (super::Solution::empty(), planes.to_vec())
+    if let Some(planes) = given {
+        if planes.len() != evidence.planes.len() {
+            return Err(SolveError::InvalidProblem(format!(
+                "{} start planes for {} planes",
+                planes.len(),
+                evidence.planes.len()
+            )));
         }
-        None => match linear_start(evidence, params) {
+    }
+    // The anchors are estimated jointly (everything below up to `best_of`), the other
+    // poses fitted against them after.
+    let split = AnchorSplit::of(evidence);
+    let sub = &split.evidence;
+    let (start, planes) = match given {
+        Some(planes) => (super::Solution::empty(), split.planes_of(planes)),
+        None => match linear_start(sub, params) {
             Ok(start) => start,
             // Nothing for the null space to stand on (a table top, a standing hand in a
             // plain room): start from the hand's centre instead.
             Err(e @ (SolveError::TooFewPlanes { .. } | SolveError::TooFewCrosses { .. })) => {
-                match super::centre::fixed_centre_start(evidence) {
+                match super::centre::fixed_centre_start(sub) {
                     Some((planes, rms)) => {
                         tracing::info!(
                             "the linear start found nothing to stand on ({e}); started from \
@@ -241,12 +243,6 @@ pub fn calibrate_from(
             Err(e) => return Err(e),
         },
     };
-    // Every pose with a crossing is estimated: those the start placed from its planes,
-    // the others (crossings all on one line of a wall, say) from the placed frames
-    // around them; their crossings and the hand's motion then place them, or their
-    // crossings reject them.
-    let sub = evidence.clone();
-    let plane_map: Vec<Option<u32>> = (0..evidence.planes.len() as u32).map(Some).collect();
     // The crossings' spread to start from: the linear start's, or a tenth of a pixel.
     let sigma_px = if start.sigma_img > 0.0 {
         (start.sigma_img * evidence.focal_px).max(1e-3)
@@ -263,13 +259,13 @@ pub fn calibrate_from(
     let mut estimates: Vec<Estimate> = Vec::new();
     // The first estimate's cost under its own spreads, once it exists.
     let mut first_cost = None;
-    for w in shift_candidates(&sub, &planes) {
+    for w in shift_candidates(sub, &planes) {
         let shifted: Vec<Option<V3>> = planes.iter().map(|p| p.map(|v| v + w)).collect();
-        let Some((poses, _)) = init::poses_from_planes(&sub, &shifted) else {
+        let Some((poses, _)) = init::poses_from_planes(sub, &shifted) else {
             continue;
         };
         let (spreads, params_here) = match estimates.first() {
-            None => (init::start_spreads(&sub, &poses, sigma_px), eparams.clone()),
+            None => (init::start_spreads(sub, &poses, sigma_px), eparams.clone()),
             Some(first) => (
                 first.spreads,
                 EstimateParams {
@@ -283,11 +279,11 @@ pub fn calibrate_from(
             focal_scale: start.focal_scale,
             spreads,
         };
-        match estimate::estimate(&sub, &start, &params_here) {
+        match estimate::estimate(sub, &start, &params_here) {
             Ok(mut est) => {
-                normalise_scale(&sub, &mut est);
+                normalise_scale(sub, &mut est);
                 if let (Some(first), Some(base)) = (estimates.first(), first_cost) {
-                    let delta = estimate::cost_at(&sub, &est, &first.spreads, &eparams) - base;
+                    let delta = estimate::cost_at(sub, &est, &first.spreads, &eparams) - base;
                     if delta < AMBIGUOUS_CHI2 {
                         // It competes: measure its own spreads too.
                         let again = Start {
@@ -295,14 +291,14 @@ pub fn calibrate_from(
                             focal_scale: est.focal_scale,
                             spreads: est.spreads,
                         };
-                        if let Ok(mut full) = estimate::estimate(&sub, &again, &eparams) {
-                            normalise_scale(&sub, &mut full);
+                        if let Ok(mut full) = estimate::estimate(sub, &again, &eparams) {
+                            normalise_scale(sub, &mut full);
                             est = full;
                         }
                     }
                 }
                 if first_cost.is_none() {
-                    first_cost = Some(estimate::cost_at(&sub, &est, &est.spreads, &eparams));
+                    first_cost = Some(estimate::cost_at(sub, &est, &est.spreads, &eparams));
                 }
                 estimates.push(est);
             }
@@ -310,18 +306,19 @@ pub fn calibrate_from(
             Err(e) => tracing::debug!("an alternative shift did not refine: {e}"),
         }
     }
-    let (est, alternatives) = best_of(&sub, estimates, &eparams)
+    let (est, alternatives) = best_of(sub, estimates, &eparams)
         .ok_or(SolveError::Degenerate("no start for the joint estimate"))?;
-    let sub_verdicts = verdicts(&sub, &est);
-    let verdicts: Vec<PlaneVerdict> = plane_map
-        .iter()
-        .map(|m| m.map_or(PlaneVerdict::NoEvidence, |k| sub_verdicts[k as usize]))
-        .collect();
-    let count = |v: PlaneVerdict| verdicts.iter().filter(|x| **x == v).count();
     let focal_scale_std = params
         .estimate_focal
         .then(|| est.marginals.first().map(|m| m[(6, 6)].max(0.0).sqrt()))
         .flatten();
+    let est = if split.is_everything() {
+        est
+    } else {
+        conditional::complete(evidence, &split, est, &eparams)
+    };
+    let verdicts = verdicts(evidence, &est);
+    let count = |v: PlaneVerdict| verdicts.iter().filter(|x| **x == v).count();
     let summary = CalibrationSummary {
         planes: evidence.planes.len(),
         planes_determined: count(PlaneVerdict::Determined),
@@ -340,8 +337,7 @@ pub fn calibrate_from(
     };
     Ok(Calibration {
         estimate: est,
-        evidence: sub,
-        plane_map,
+        evidence: evidence.clone(),
         verdicts,
         summary,
     })
@@ -478,6 +474,14 @@ fn normalise_scale(evidence: &Evidence, est: &mut Estimate) {
     let t = nalgebra::SMatrix::<f64, 7, 7>::from_diagonal(&t);
     for cov in &mut est.marginals {
         *cov = t * *cov * t;
+    }
+    // The centres' rows and columns of the joint covariance likewise.
+    let n = est.covariance.nrows();
+    let factor = |i: usize| if i < n - n % 6 && i % 6 >= 3 { m } else { 1.0 };
+    for j in 0..n {
+        for i in 0..n {
+            est.covariance[(i, j)] *= factor(i) * factor(j);
+        }
     }
     est.spreads.centre *= m.abs();
 }

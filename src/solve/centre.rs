@@ -337,6 +337,7 @@ mod tests {
             .collect();
         let ev = Evidence {
             pose_frames: (0..60).collect(),
+            anchors: Vec::new(),
             planes: (0..120)
                 .map(|i| PlaneSlot {
                     pose: i / 2,

@@ -113,6 +113,10 @@ pub struct Estimate {
     /// Per kind of residual (crossings strong, faint; centre; aim; roll): its share of the
     /// redundancy, `Σ (w − h)`.
     pub redundancy: [f64; 5],
+    /// The covariance of every unknown estimated jointly (six a pose, then the focal
+    /// scale when estimated), which the poses fitted against these need
+    /// ([`super::conditional`]); empty in an estimate completed by them.
+    pub covariance: Mat<f64>,
 }
 
 impl Estimate {
@@ -813,6 +817,7 @@ pub fn estimate(
         cost,
         iterations,
         redundancy,
+        covariance: cov,
     })
 }
 

@@ -14,7 +14,7 @@ const FOCAL_PX: f64 = 1000.0;
 
 /// The evidence of `scan`: every frame a pose, both lasers planes, every analytic
 /// crossing (moved by Gaussian noise of `noise_px` pixels), kept where `keep` says.
-fn evidence_of(
+pub(super) fn evidence_of(
     scan: &PathScan,
     noise_px: f64,
     seed: u64,
@@ -42,6 +42,7 @@ fn evidence_of(
         .collect();
     Evidence {
         pose_frames: (0..scan.planes.len() as u32).collect(),
+        anchors: Vec::new(),
         planes: (0..planes.len())
             .map(|i| PlaneSlot {
                 pose: (i / 2) as u32,

@@ -101,6 +101,10 @@ pub struct Evidence {
     /// Per pose, the index of its frame (the time, in frames, that the motion terms
     /// measure steps in). Increasing.
     pub pose_frames: Vec<u32>,
+    /// Per pose, whether it is an *anchor*: the anchors are estimated jointly, every
+    /// other pose on its own against them (see [`super::calibrate`]). Empty: every pose
+    /// is one. Every crossing ties an anchor's plane, or a pose's own two planes.
+    pub anchors: Vec<bool>,
     pub planes: Vec<PlaneSlot>,
     pub crossings: Vec<Observation>,
     /// Focal length (pixels) of the camera file, so that residuals are in pixels.
@@ -111,6 +115,14 @@ pub struct Evidence {
 impl Evidence {
     pub fn num_poses(&self) -> usize {
         self.pose_frames.len()
+    }
+
+    /// Whether pose `p` is an anchor (see [`Self::anchors`]).
+    pub fn is_anchor(&self, p: usize) -> bool {
+        self.anchors
+            .get(p)
+            .copied()
+            .unwrap_or(self.anchors.is_empty())
     }
 
     /// Per pose, its planes by laser.
@@ -132,6 +144,12 @@ impl Evidence {
             return Err("pose frames do not increase".into());
         }
         let poses = self.num_poses();
+        if !self.anchors.is_empty() && self.anchors.len() != poses {
+            return Err(format!(
+                "{} anchor flags for {poses} poses",
+                self.anchors.len()
+            ));
+        }
         if let Some(p) = self.planes.iter().find(|p| p.pose as usize >= poses) {
             return Err(format!("plane of pose {} beyond {poses} poses", p.pose));
         }

@@ -40,6 +40,7 @@
 
 pub mod calibrate;
 pub mod centre;
+pub mod conditional;
 pub mod estimate;
 pub mod evidence;
 pub mod extend;
@@ -108,6 +109,10 @@ pub enum SolveError {
 pub struct SolveParams {
     /// Largest number of planes in the global coplanarity solve (the paper used 400).
     pub max_global_planes: usize,
+    /// Largest number of anchor crosses: those estimated jointly, and crossed with every
+    /// curve; every other frame's pose is fitted on its own against them
+    /// ([`crate::pipeline::anchors`]). Bounds the work per frame.
+    pub max_anchor_poses: usize,
     /// Least number of crossings a curve needs with other solved curves to be extended
     /// (three determine a plane).
     pub min_crossings_per_plane: usize,
@@ -162,6 +167,7 @@ impl Default for SolveParams {
     fn default() -> Self {
         Self {
             max_global_planes: 400,
+            max_anchor_poses: 200,
             min_crossings_per_plane: 3,
             min_global_crossings: 6,
             min_sin_angle: 0.1,
@@ -1042,6 +1048,8 @@ pub fn solve_warm(
     })
 }
 
+#[cfg(test)]
+mod conditional_tests;
 #[cfg(test)]
 mod estimate_tests;
 #[cfg(test)]

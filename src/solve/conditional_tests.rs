@@ -1,0 +1,100 @@
+//! The poses fitted against the anchors ([`super::conditional`]) against the joint
+//! estimate of every pose, on noisy analytic crossings of the synthetic room.
+
+use super::calibrate::{calibrate, Calibration, PlaneVerdict};
+use super::estimate_tests::evidence_of;
+use super::evidence::Evidence;
+use super::synthetic::{path_scan, PathSpec};
+use super::SolveParams;
+
+/// Per crossing of a plane that is no anchor in `anchored`: the depth error (after the
+/// one global scale) and the deviation both calibrations give it, the joint one's too.
+fn depth_errors(
+    ev: &Evidence,
+    truth: &[nalgebra::Vector3<f64>],
+    anchored: &Calibration,
+    joint: &Calibration,
+) -> Vec<(f64, f64, f64)> {
+    let scale = |cal: &Calibration| {
+        let ratios: Vec<f64> = ev
+            .crossings
+            .iter()
+            .filter_map(|c| {
+                let ray = cal.ray(c.u)?;
+                Some(truth[c.a as usize].dot(&ray.r) / cal.plane(c.a as usize)?.dot(&ray.r))
+            })
+            .collect();
+        super::median(ratios).expect("crossings")
+    };
+    let sa = scale(anchored);
+    ev.crossings
+        .iter()
+        .filter(|c| !ev.is_anchor(ev.planes[c.a as usize].pose as usize))
+        .filter_map(|c| {
+            let ray = anchored.ray(c.u)?;
+            let i = c.a as usize;
+            let rho = anchored.plane(i)?.dot(&ray.r) * sa;
+            let err = (truth[i].dot(&ray.r) / rho - 1.0).abs();
+            Some((
+                err,
+                anchored.depth_sigma(i, &ray),
+                joint.depth_sigma(i, &ray),
+            ))
+        })
+        .collect()
+}
+
+/// Every third frame an anchor: the others, fitted against them, come out as the joint
+/// estimate's, their deviations no smaller than the joint ones (the anchors' errors are
+/// in them) and honest (the errors are about their size).
+#[test]
+fn poses_fitted_against_anchors_know_how_well_they_are_known() {
+    let scan = path_scan(&PathSpec {
+        frames: 90,
+        ..PathSpec::default()
+    });
+    let truth = scan.flat_planes();
+    let all = evidence_of(&scan, 0.1, 3, |_, _| true);
+    let mut ev = all.clone();
+    ev.anchors = (0..ev.num_poses()).map(|p| p % 3 == 0).collect();
+    // As the scan finds them: no crossing of two frames that are both not anchors.
+    let (planes, anchors) = (ev.planes.clone(), ev.anchors.clone());
+    ev.crossings.retain(|c| {
+        let (pa, pb) = (planes[c.a as usize].pose, planes[c.b as usize].pose);
+        pa == pb || anchors[pa as usize] || anchors[pb as usize]
+    });
+    let params = SolveParams::default();
+    let joint = calibrate(&all, &params).expect("joint");
+    let anchored = calibrate(&ev, &params).expect("anchored");
+    let determined = anchored
+        .verdicts
+        .iter()
+        .filter(|v| **v == PlaneVerdict::Determined)
+        .count();
+    assert!(
+        determined as f64 > 0.95 * ev.planes.len() as f64,
+        "{determined} of {}",
+        ev.planes.len()
+    );
+    let rows = depth_errors(&ev, &truth, &anchored, &joint);
+    assert!(rows.len() > 500, "{}", rows.len());
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let finite: Vec<&(f64, f64, f64)> = rows
+        .iter()
+        .filter(|r| r.1.is_finite() && r.2.is_finite())
+        .collect();
+    let ratio = median(finite.iter().map(|r| r.1 / r.2).collect());
+    assert!(
+        ratio >= 1.0 && ratio < 3.0,
+        "fitted over joint deviation: {ratio}"
+    );
+    let z = median(finite.iter().map(|r| r.0 / r.1).collect());
+    // |N(0,1)| has median 0.67. Without the anchors' errors in the deviations it is
+    // 0.96 here: too small deviations.
+    assert!(z > 0.45 && z < 0.9, "median error in deviations: {z}");
+    let err = median(finite.iter().map(|r| r.0).collect());
+    assert!(err < 1e-3, "median depth error {err}");
+}
