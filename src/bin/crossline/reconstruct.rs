@@ -22,13 +22,21 @@ use nalgebra::Vector3;
 /// Example:
 ///
 ///   crossline reconstruct --input sim --camera sim/camera.yml --out cloud.ply --report report.json
+///   crossline reconstruct --input DIVE.MP4 --start 30 --duration 60 --camera gopro.yml --out dive.ply
 #[derive(clap::Args)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
     /// A folder of frames (.png/.jpg; `frame_*` files only when present), in name
-    /// order, or a recorded dump (`crossline simulate --format dump` writes one).
-    #[arg(long, value_name = "DIR|DUMP")]
+    /// order, a recorded dump (`crossline simulate --format dump` writes one), or a
+    /// video file (.mp4, .mov, .mkv, .avi; decoded by FFmpeg, which must be installed).
+    #[arg(long, value_name = "DIR|DUMP|VIDEO")]
     input: PathBuf,
+    /// Video input only: start this many seconds after the first frame.
+    #[arg(long, value_name = "SECONDS")]
+    start: Option<f64>,
+    /// Video input only: use this many seconds of it (default: to the end).
+    #[arg(long, value_name = "SECONDS")]
+    duration: Option<f64>,
     /// Camera calibration: OpenCV FileStorage YAML, ROS camera_info YAML, or TOML with a
     /// [camera] table.
     #[arg(long, value_name = "FILE")]
@@ -88,7 +96,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         config.extract.lasers = crate::extract::lasers_arg(name)?;
     }
     let scale = scale_mode(args.scale, args.known_distance.as_deref())?;
-    let (frames, stopped) = reconstruct::FrameSource::open(&args.input)?;
+    let window = video_window(args.start, args.duration);
+    let (frames, stopped) = reconstruct::FrameSource::open_window(&args.input, window)
+        .with_context(|| format!("opening {}", args.input.display()))?;
     if let Some(why) = stopped {
         tracing::warn!("using the {} whole frames before: {why}", frames.len());
     }
@@ -137,6 +147,17 @@ fn true_planes(dir: &Path, frames: usize) -> anyhow::Result<Vec<[Option<Vector3<
         .iter()
         .map(|f| f.planes.map(|p| Some(Vector3::from(p))))
         .collect())
+}
+
+/// The part of a video `--start` and `--duration` select, if they were given.
+pub fn video_window(
+    start: Option<f64>,
+    duration: Option<f64>,
+) -> Option<crossline::capture::video::Window> {
+    (start.is_some() || duration.is_some()).then(|| crossline::capture::video::Window {
+        start_s: start.unwrap_or(0.0),
+        duration_s: duration,
+    })
 }
 
 pub fn scale_mode(scale: Option<f64>, known_distance: Option<&str>) -> anyhow::Result<ScaleMode> {
