@@ -3,6 +3,7 @@
 mod daemon;
 mod faults;
 mod util;
+mod video;
 
 use std::path::Path;
 
