@@ -70,7 +70,8 @@ pub struct Args {
     /// out_dir.
     #[arg(long, value_name = "DIR")]
     out_dir: Option<PathBuf>,
-    /// Write the final cloud here instead of OUT_DIR/<scan>.ply.
+    /// Write the final cloud here instead of OUT_DIR/<scan>.ply (E57 when it ends in
+    /// .e57).
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
     /// Write the final report here instead of OUT_DIR/<scan>.json.
