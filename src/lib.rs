@@ -24,7 +24,7 @@
 //! - [`pipeline`]: the stages after extraction that `reconstruct` and `serve` share:
 //!   crossings, the self-calibration, triangulation where the planes determine depth.
 //! - [`reconstruct`]: offline recordings through the pipeline; [`config`]: its settings.
-//! - [`ply`]: PLY point cloud reading and writing.
+//! - [`ply`]: PLY point cloud reading and writing; [`e57`]: E57 export of the final cloud.
 //! - [`serve`]: the live daemon: threads, incremental solver, checkpoints, sockets,
 //!   the cloud stream protocol and status lines.
 //! - [`compare`]: cloud-to-reference and cloud-to-truth accuracy evaluation.
@@ -37,6 +37,7 @@ pub mod capture;
 pub mod cloud;
 pub mod compare;
 pub mod config;
+pub mod e57;
 pub mod extract;
 pub mod intersect;
 pub mod pfm;

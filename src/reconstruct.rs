@@ -1,8 +1,9 @@
-//! Offline reconstruction: a recording (a folder of frames or a dump) in, a coloured
-//! point cloud out.
+//! Offline reconstruction: a recording (a folder of frames, a dump or a video file) in,
+//! a coloured point cloud out.
 //!
-//! Owns where offline frames come from ([`FrameSource`]) and the wiring of the stages
-//! over them: the background ([`crate::extract::Background`]: a laser-off frame, or the
+//! Owns where offline frames come from ([`FrameSource`]; a video file is decoded in
+//! order, in passes, where files and dumps are read at random) and the wiring of the
+//! stages over them: the background ([`crate::extract::Background`]: a laser-off frame, or the
 //! per-pixel temporal median of frames sampled over the recording), extraction in
 //! parallel over frames ([`crate::extract::Extractor`]), then the stages shared with the
 //! live daemon ([`crate::pipeline::reconstruct_curves`]).
@@ -16,9 +17,14 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
 use crate::capture::dump::{DumpError, DumpHeader, DumpReader};
+use crate::capture::video::{self, VideoError, VideoFile, Window};
 use crate::cloud::ScaleMode;
 use crate::config::Config;
 use crate::extract::{Background, Curve, Extractor};
+use streamed::{check_video_size, video_image};
+
+mod streamed;
+
 pub use crate::pipeline::{
     reconstruct_curves, PlaneSource, ReconstructReport, Reconstruction, StageTimes, REPORT_VERSION,
 };
@@ -66,6 +72,18 @@ pub enum ReconstructError {
         want_w: u32,
         want_h: u32,
     },
+    #[error("{path} is {got_w}x{got_h} video, but the camera file is for {want_w}x{want_h}: calibrate the camera at the size the video was recorded")]
+    VideoSize {
+        path: PathBuf,
+        got_w: u32,
+        got_h: u32,
+        want_w: u32,
+        want_h: u32,
+    },
+    #[error(transparent)]
+    Video(#[from] VideoError),
+    #[error("--start and --duration select part of a video file, not of {0}")]
+    WindowNotVideo(PathBuf),
     #[error("extraction")]
     Extract(#[from] crate::extract::ExtractError),
     #[error("reading the dump")]
@@ -134,8 +152,8 @@ pub fn list_frames(dir: &Path) -> Result<Vec<PathBuf>, ReconstructError> {
     Ok(frames)
 }
 
-/// Where the frames come from: image files, or a recorded dump
-/// ([`crate::capture::dump`]).
+/// Where the frames come from: image files, a recorded dump
+/// ([`crate::capture::dump`]) or a video file ([`crate::capture::video`]).
 pub enum FrameSource {
     Files(Vec<PathBuf>),
     Dump {
@@ -143,12 +161,34 @@ pub enum FrameSource {
         header: DumpHeader,
         offsets: Vec<u64>,
     },
+    Video(VideoFile),
 }
 
 impl FrameSource {
-    /// A folder of images, or a dump file. A dump cut off or damaged after some whole
-    /// frames still opens; the error that stopped the scan is returned beside it.
+    /// A folder of images, a dump file, or a video file (by its extension, see
+    /// [`video::VIDEO_EXTENSIONS`]). A dump cut off or damaged after some whole frames
+    /// still opens; the error that stopped the scan is returned beside it. (A cut-off
+    /// video is warned about as it is probed.)
     pub fn open(input: &Path) -> Result<(Self, Option<DumpError>), ReconstructError> {
+        Self::open_window(input, None)
+    }
+
+    /// [`FrameSource::open`], keeping only `window` of a video file (an error for
+    /// other inputs).
+    pub fn open_window(
+        input: &Path,
+        window: Option<Window>,
+    ) -> Result<(Self, Option<DumpError>), ReconstructError> {
+        if video::is_video(input) && !input.is_dir() {
+            let file = VideoFile::probe(input, window.unwrap_or_default())?;
+            if file.frames.is_empty() {
+                return Err(ReconstructError::NoFrames(input.to_path_buf()));
+            }
+            return Ok((Self::Video(file), None));
+        }
+        if window.is_some() {
+            return Err(ReconstructError::WindowNotVideo(input.to_path_buf()));
+        }
         if input.is_dir() {
             return Ok((Self::Files(list_frames(input)?), None));
         }
@@ -173,6 +213,7 @@ impl FrameSource {
         match self {
             Self::Files(f) => f.len(),
             Self::Dump { offsets, .. } => offsets.len(),
+            Self::Video(v) => v.frames.len(),
         }
     }
 
@@ -180,9 +221,20 @@ impl FrameSource {
         self.len() == 0
     }
 
-    /// Frame `i`, decoded to RGB and checked against the camera's image size.
+    /// Frame `i`, decoded to RGB and checked against the camera's image size. (A video
+    /// is decoded from its start to frame `i`: slow, for single frames only.)
     pub fn decode(&self, i: usize, camera: &Camera) -> Result<RgbImage, ReconstructError> {
         match self {
+            Self::Video(file) => {
+                check_video_size(file, camera)?;
+                let mut reader = file.reader()?;
+                while let Some(frame) = reader.next_frame()? {
+                    if frame.position == i {
+                        return video_image(file, frame.rgb);
+                    }
+                }
+                Err(ReconstructError::NoFrames(file.path.clone()))
+            }
             Self::Files(files) => decode(&files[i], camera),
             Self::Dump {
                 path,
@@ -240,6 +292,30 @@ fn decode(path: &Path, camera: &Camera) -> Result<RgbImage, ReconstructError> {
         })?
         .into_rgb8();
     check_size(img, path, camera)
+}
+
+impl FrameSource {
+    /// `f(state, i, frame i)` for every `i` of `wanted` (ascending), in parallel, the
+    /// results in that order; each thread's `state` comes from `init` and is reused. A
+    /// video is decoded in one pass ([`streamed`]) and ends at its last whole frame:
+    /// the result may then be shorter than `wanted`.
+    fn map_frames<S: Send, T: Send>(
+        &self,
+        wanted: &[usize],
+        camera: &Camera,
+        init: impl Fn() -> S + Sync + Send,
+        f: impl Fn(&mut S, usize, Result<RgbImage, ReconstructError>) -> Result<T, ReconstructError>
+            + Sync
+            + Send,
+    ) -> Result<Vec<T>, ReconstructError> {
+        match self {
+            Self::Video(file) => streamed::map_frames(file, wanted, camera, init, f),
+            _ => wanted
+                .par_iter()
+                .map_init(&init, |s, &i| f(s, i, self.decode(i, camera)))
+                .collect(),
+        }
+    }
 }
 
 impl ReconstructError {
@@ -328,10 +404,8 @@ pub fn reconstruct_files(
             let picks: Vec<usize> = (0..k)
                 .map(|i| (i * frames.len()) / k + frames.len() / (2 * k))
                 .collect();
-            let images = picks
-                .par_iter()
-                .map(|&i| sampled.filter(i, frames.decode(i, camera)))
-                .collect::<Result<Vec<_>, _>>()?;
+            let images =
+                frames.map_frames(&picks, camera, || (), |_, i, r| sampled.filter(i, r))?;
             let refs: Vec<&RgbImage> = images.iter().flatten().collect();
             Background::median_of(&refs)?
         }
@@ -344,24 +418,24 @@ pub fn reconstruct_files(
     Extractor::new(&config.extract, camera)?;
     let done = std::sync::atomic::AtomicUsize::new(0);
     let skipped = Skipped::default();
-    let per_frame: Vec<Vec<Curve>> = (0..frames.len())
-        .into_par_iter()
-        .map_init(
-            || Extractor::new(&config.extract, camera).ok(),
-            |extractor, i| {
-                let Some(extractor) = extractor.as_mut() else {
-                    return Err(ReconstructError::Internal("extractor construction failed"));
-                };
-                let curves = match skipped.filter(i, frames.decode(i, camera))? {
-                    Some(img) => extractor.extract(&img, &background),
-                    None => Vec::new(),
-                };
-                let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-                progress.update("extract", n, frames.len());
-                Ok(curves)
-            },
-        )
-        .collect::<Result<_, ReconstructError>>()?;
+    let all: Vec<usize> = (0..frames.len()).collect();
+    let per_frame: Vec<Vec<Curve>> = frames.map_frames(
+        &all,
+        camera,
+        || Extractor::new(&config.extract, camera).ok(),
+        |extractor, i, image| {
+            let Some(extractor) = extractor.as_mut() else {
+                return Err(ReconstructError::Internal("extractor construction failed"));
+            };
+            let curves = match skipped.filter(i, image)? {
+                Some(img) => extractor.extract(&img, &background),
+                None => Vec::new(),
+            };
+            let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            progress.update("extract", n, frames.len());
+            Ok(curves)
+        },
+    )?;
     let extract_s = t.elapsed().as_secs_f64();
 
     let mut rec = reconstruct_curves(

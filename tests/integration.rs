@@ -3,6 +3,7 @@
 mod daemon;
 mod faults;
 mod util;
+mod video;
 
 use std::path::Path;
 
@@ -644,4 +645,28 @@ fn record_and_feed_refuse_what_is_not_a_video_device() {
     );
     assert!(err.contains("none.dump"), "{err}");
     assert_eq!(err.matches("os error 2").count(), 1, "cause once: {err}");
+}
+
+#[test]
+fn reconstruct_writes_e57_by_the_extension_with_the_plys_points_and_colours() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let sim = fixtures().join("sim-bricks");
+    let (ply, e57) = (tmp.path().join("scan.ply"), tmp.path().join("scan.e57"));
+    for out in [&ply, &e57] {
+        run_ok(&mut reconstruct(
+            &sim.join("frames.dump"),
+            &sim.join("camera.yml"),
+            out,
+        ));
+    }
+    let (a, b) = (
+        read_ply(&ply).expect("ply"),
+        crossline::e57::read_e57(&e57).expect("e57"),
+    );
+    assert!(a.len() > 5000, "{} points", a.len());
+    assert_eq!(a.points, b.points);
+    assert_eq!(a.colors, b.colors);
+    let meta = crossline::e57::read_meta(&e57).expect("meta");
+    assert!(meta.description.contains("MedianDepth"), "{meta:?}");
+    assert!(meta.sensor_model.is_some_and(|m| m.contains("480x270")));
 }

@@ -1,7 +1,8 @@
 //! Frames from cameras and recordings.
 //!
 //! - [`dump`]: the recording format of raw camera buffers (versioned, documented there).
-//! - [`replay`]: a recorded dump played back as if it were a camera.
+//! - [`replay`]: a recorded dump or video file played back as if it were a camera.
+//! - [`video`]: video files (MP4, MOV, MKV, AVI) decoded by an FFmpeg child process.
 //! - [`v4l2`] (Linux): capture from V4L2 cameras through our own ioctl layer, and
 //!   writing frames into a v4l2loopback device.
 //! - [`live`] (Linux): a V4L2 camera as a [`FrameSource`], reopened with back-off when
@@ -16,10 +17,12 @@ pub mod live;
 pub mod replay;
 #[cfg(target_os = "linux")]
 pub mod v4l2;
+pub mod video;
 
 use std::time::Duration;
 
 use dump::{DumpError, DumpHeader};
+use video::VideoError;
 
 /// One buffer from a source, borrowed until the next call.
 #[derive(Clone, Copy, Debug)]
@@ -53,6 +56,8 @@ pub enum Next<'a> {
 pub enum CaptureError {
     #[error(transparent)]
     Dump(#[from] DumpError),
+    #[error(transparent)]
+    Video(#[from] VideoError),
     #[error("{0}")]
     Device(String),
     #[error("the device came back with another format ({now}) than the scan's ({was})")]

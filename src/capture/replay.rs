@@ -1,10 +1,12 @@
-//! A recorded dump played back as a camera: at the recorded frame rate (the driver's
+//! A recording played back as a camera: a dump, or a video file decoded by FFmpeg
+//! ([`super::video`]), at the recorded frame rate (the driver's or the container's
 //! timestamps set the pace) or as fast as the pipeline takes it, losslessly.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use super::dump::{DumpError, DumpHeader, DumpReader, Record};
+use super::video::{VideoError, VideoFile, VideoReader, Window};
 use super::{CaptureError, Frame, FrameSource, Next};
 
 /// How fast a replay runs.
@@ -18,8 +20,33 @@ pub enum Rate {
     Max,
 }
 
+/// Where a replay's records come from.
+enum Recording {
+    Dump(DumpReader),
+    Video {
+        header: DumpHeader,
+        reader: VideoReader,
+    },
+}
+
+impl Recording {
+    fn header(&self) -> &DumpHeader {
+        match self {
+            Self::Dump(r) => r.header(),
+            Self::Video { header, .. } => header,
+        }
+    }
+
+    fn next_record(&mut self) -> Result<Option<Record>, CaptureError> {
+        match self {
+            Self::Dump(r) => Ok(r.next_record()?),
+            Self::Video { reader, .. } => Ok(reader.next_record()?),
+        }
+    }
+}
+
 pub struct ReplaySource {
-    reader: DumpReader,
+    reader: Recording,
     rate: Rate,
     /// Read ahead, not yet released (waiting for its time).
     record: Option<Record>,
@@ -41,8 +68,23 @@ pub const MAX_REPLAY_GAP: Duration = Duration::from_secs(1);
 
 impl ReplaySource {
     pub fn open(path: &Path, rate: Rate) -> Result<Self, DumpError> {
-        Ok(Self {
-            reader: DumpReader::open(path)?,
+        Ok(Self::new(Recording::Dump(DumpReader::open(path)?), rate))
+    }
+
+    /// The frames of a video file in `window`, decoded by FFmpeg, with the
+    /// container's timestamps.
+    pub fn open_video(path: &Path, window: Window, rate: Rate) -> Result<Self, VideoError> {
+        let file = VideoFile::probe(path, window)?;
+        let recording = Recording::Video {
+            header: file.header(),
+            reader: file.reader()?,
+        };
+        Ok(Self::new(recording, rate))
+    }
+
+    fn new(reader: Recording, rate: Rate) -> Self {
+        Self {
+            reader,
             rate,
             record: None,
             current: None,
@@ -50,7 +92,7 @@ impl ReplaySource {
             clock: None,
             gaps_clamped: 0,
             ended: false,
-        })
+        }
     }
 
     /// Reads the next record into `self.record` (unless one is waiting).
@@ -72,7 +114,7 @@ impl ReplaySource {
             }
             Err(e) => {
                 self.ended = true;
-                Err(e.into())
+                Err(e)
             }
         }
     }

@@ -138,6 +138,8 @@ pub enum ServeError {
     },
     #[error("writing the cloud: {0}")]
     Ply(#[from] crate::ply::PlyError),
+    #[error("writing the cloud: {0}")]
+    E57(#[from] crate::e57::E57Error),
     #[error("{path} is in use by another crossline serve (pid {pid}): one daemon per out_dir; stop it or give this one another [serve] out_dir")]
     Busy { path: PathBuf, pid: String },
     #[error("the stream's frames ({header}) are larger than crossline buffers: {message}")]
@@ -1391,7 +1393,23 @@ fn finish(
         format!("input {}", opts.input_id),
         "camera frame, OpenCV axes; one global scale (see the report's scale_mode)".to_string(),
     ];
-    crate::ply::write_ply_atomic(&scan.cloud, &cloud, &comments)?;
+    if crate::e57::is_e57(&scan.cloud) {
+        let meta = crate::e57::ScanMeta {
+            name: scan.id.clone(),
+            description: format!("crossline serve; {}; scale {:?}", opts.input_id, opts.scale),
+            sensor_model: Some(format!(
+                "{} at {}x{}",
+                opts.input_id, opts.camera.width, opts.camera.height
+            )),
+            // The capture has just stopped.
+            acquisition_end: Some(std::time::SystemTime::now()),
+            coordinate_metadata: Some(comments[2].clone()),
+            ..Default::default()
+        };
+        crate::e57::write_e57_atomic(&scan.cloud, &cloud, &meta)?;
+    } else {
+        crate::ply::write_ply_atomic(&scan.cloud, &cloud, &comments)?;
+    }
     tracing::info!(
         points = cloud.len(),
         "cloud written to {}",

@@ -22,18 +22,27 @@ use nalgebra::Vector3;
 /// Example:
 ///
 ///   crossline reconstruct --input sim --camera sim/camera.yml --out cloud.ply --report report.json
+///   crossline reconstruct --input DIVE.MP4 --start 30 --duration 60 --camera gopro.yml --out dive.ply
 #[derive(clap::Args)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
     /// A folder of frames (.png/.jpg; `frame_*` files only when present), in name
-    /// order, or a recorded dump (`crossline simulate --format dump` writes one).
-    #[arg(long, value_name = "DIR|DUMP")]
+    /// order, a recorded dump (`crossline simulate --format dump` writes one), or a
+    /// video file (.mp4, .mov, .mkv, .avi; decoded by FFmpeg, which must be installed).
+    #[arg(long, value_name = "DIR|DUMP|VIDEO")]
     input: PathBuf,
+    /// Video input only: start this many seconds after the first frame.
+    #[arg(long, value_name = "SECONDS")]
+    start: Option<f64>,
+    /// Video input only: use this many seconds of it (default: to the end).
+    #[arg(long, value_name = "SECONDS")]
+    duration: Option<f64>,
     /// Camera calibration: OpenCV FileStorage YAML, ROS camera_info YAML, or TOML with a
     /// [camera] table.
     #[arg(long, value_name = "FILE")]
     camera: PathBuf,
-    /// Output cloud (binary little-endian PLY: x y z, red green blue, frame, laser).
+    /// Output cloud: binary little-endian PLY (x y z, red green blue, frame, laser), or
+    /// E57 for survey tools when the name ends in .e57 (points, colours, metadata).
     #[arg(long, value_name = "FILE")]
     out: PathBuf,
     /// Settings file (see config/crossline.toml for every key and its default).
@@ -88,7 +97,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         config.extract.lasers = crate::extract::lasers_arg(name)?;
     }
     let scale = scale_mode(args.scale, args.known_distance.as_deref())?;
-    let (frames, stopped) = reconstruct::FrameSource::open(&args.input)?;
+    let window = video_window(args.start, args.duration);
+    let (frames, stopped) = reconstruct::FrameSource::open_window(&args.input, window)
+        .with_context(|| format!("opening {}", args.input.display()))?;
     if let Some(why) = stopped {
         tracing::warn!("using the {} whole frames before: {why}", frames.len());
     }
@@ -113,7 +124,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         &|_stage: &str, done: usize, _total: usize| bar.set_position(done as u64),
     )?;
     bar.finish_and_clear();
-    write_outputs(&rec, &args.out, args.report.as_deref())?;
+    let meta = scan_meta(&args.input, &args.camera, &camera, &rec);
+    write_outputs_with(&rec, &args.out, args.report.as_deref(), &meta)?;
     print_summary(&rec);
     Ok(ExitCode::SUCCESS)
 }
@@ -137,6 +149,17 @@ fn true_planes(dir: &Path, frames: usize) -> anyhow::Result<Vec<[Option<Vector3<
         .iter()
         .map(|f| f.planes.map(|p| Some(Vector3::from(p))))
         .collect())
+}
+
+/// The part of a video `--start` and `--duration` select, if they were given.
+pub fn video_window(
+    start: Option<f64>,
+    duration: Option<f64>,
+) -> Option<crossline::capture::video::Window> {
+    (start.is_some() || duration.is_some()).then(|| crossline::capture::video::Window {
+        start_s: start.unwrap_or(0.0),
+        duration_s: duration,
+    })
 }
 
 pub fn scale_mode(scale: Option<f64>, known_distance: Option<&str>) -> anyhow::Result<ScaleMode> {
@@ -179,10 +202,56 @@ pub fn progress_bar(len: u64) -> indicatif::ProgressBar {
     bar
 }
 
+/// What an E57 output says besides the points: the input, the camera, the scale, and
+/// the input's modification time as the end of its acquisition (a recording is last
+/// written as it stops).
+pub fn scan_meta(
+    input: &Path,
+    camera_path: &Path,
+    camera: &crossline::camera::Camera,
+    rec: &Reconstruction,
+) -> crossline::e57::ScanMeta {
+    let name = input
+        .file_stem()
+        .map_or_else(|| "scan".into(), |s| s.to_string_lossy().into_owned());
+    crossline::e57::ScanMeta {
+        name,
+        description: format!(
+            "crossline reconstruct of {}; scale {:?}, factor {}",
+            input.display(),
+            rec.report.scale_mode,
+            rec.report.scale_factor
+        ),
+        sensor_model: Some(format!(
+            "camera {}x{} calibrated in {}",
+            camera.width,
+            camera.height,
+            camera_path.display()
+        )),
+        acquisition_start: None,
+        acquisition_end: std::fs::metadata(input).and_then(|m| m.modified()).ok(),
+        coordinate_metadata: Some(
+            "camera frame, OpenCV axes (x right, y down, z forward); one global scale \
+             (see the description's scale mode)"
+                .into(),
+        ),
+    }
+}
+
 pub fn write_outputs(
     rec: &Reconstruction,
     out: &Path,
     report: Option<&Path>,
+) -> anyhow::Result<()> {
+    write_outputs_with(rec, out, report, &crossline::e57::ScanMeta::default())
+}
+
+/// The cloud (PLY, or E57 with `meta` when `out` ends in .e57) and the report.
+pub fn write_outputs_with(
+    rec: &Reconstruction,
+    out: &Path,
+    report: Option<&Path>,
+    meta: &crossline::e57::ScanMeta,
 ) -> anyhow::Result<()> {
     let comments = [
         "generated by crossline reconstruct".to_string(),
@@ -191,8 +260,12 @@ pub fn write_outputs(
             rec.report.scale_mode, rec.report.scale_factor
         ),
     ];
-    crossline::ply::write_ply(out, &rec.cloud, &comments)
-        .with_context(|| format!("writing the cloud to {}", out.display()))?;
+    let written: anyhow::Result<()> = if crossline::e57::is_e57(out) {
+        crossline::e57::write_e57(out, &rec.cloud, meta).map_err(Into::into)
+    } else {
+        crossline::ply::write_ply(out, &rec.cloud, &comments).map_err(Into::into)
+    };
+    written.with_context(|| format!("writing the cloud to {}", out.display()))?;
     if let Some(path) = report {
         let json = serde_json::to_string_pretty(&rec.report)?;
         std::fs::write(path, json + "\n")

@@ -7,11 +7,13 @@ use std::sync::Arc;
 
 use anyhow::{bail, Context};
 use crossline::capture::replay::{Rate, ReplaySource};
+use crossline::capture::video::is_video;
 use crossline::capture::FrameSource;
 use crossline::config::Config;
 use crossline::serve::{self, ServeOptions};
 
-/// Run the scanner live: capture from a V4L2 camera (or replay a recorded dump),
+/// Run the scanner live: capture from a V4L2 camera (or replay a recorded dump or a
+/// video file),
 /// extract the laser curves on worker threads, solve the planes incrementally, and
 /// stream the growing cloud to clients while recording every raw frame.
 ///
@@ -29,6 +31,7 @@ use crossline::serve::{self, ServeOptions};
 ///   crossline serve --config /etc/crossline/crossline.toml
 ///   crossline serve --camera cam.yml --device /dev/v4l/by-id/usb-...-video-index0 --out-dir scans
 ///   crossline serve --camera cam.yml --replay dive.dump --rate max --out-dir reprocessed
+///   crossline serve --camera gopro.yml --replay DIVE.MP4 --start 30 --duration 60 --out-dir scans
 #[derive(clap::Args)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
@@ -47,9 +50,17 @@ pub struct Args {
     /// V4L2 device path, e.g. /dev/video0 or /dev/v4l/by-id/... Default: [serve] device.
     #[arg(long, value_name = "PATH", conflicts_with = "replay")]
     device: Option<PathBuf>,
-    /// Replay a recorded dump through the identical pipeline instead of a camera.
-    #[arg(long, value_name = "DUMP")]
+    /// Replay a recorded dump, or a video file (.mp4, .mov, .mkv, .avi; decoded by
+    /// FFmpeg, which must be installed), through the identical pipeline instead of a
+    /// camera.
+    #[arg(long, value_name = "DUMP|VIDEO")]
     replay: Option<PathBuf>,
+    /// Video replay only: start this many seconds after the first frame.
+    #[arg(long, value_name = "SECONDS", requires = "replay")]
+    start: Option<f64>,
+    /// Video replay only: replay this many seconds of it (default: to the end).
+    #[arg(long, value_name = "SECONDS", requires = "replay")]
+    duration: Option<f64>,
     /// Replay pace: `realtime` releases frames at their recorded times (frames the
     /// workers cannot take are dropped, as from a camera); `max` goes as fast as the
     /// pipeline takes them and drops nothing.
@@ -59,7 +70,8 @@ pub struct Args {
     /// out_dir.
     #[arg(long, value_name = "DIR")]
     out_dir: Option<PathBuf>,
-    /// Write the final cloud here instead of OUT_DIR/<scan>.ply.
+    /// Write the final cloud here instead of OUT_DIR/<scan>.ply (E57 when it ends in
+    /// .e57).
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
     /// Write the final report here instead of OUT_DIR/<scan>.json.
@@ -143,12 +155,28 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 RateArg::Realtime => Rate::Realtime,
                 RateArg::Max => Rate::Max,
             };
-            let src = ReplaySource::open(path, rate)
-                .with_context(|| format!("opening the replay {}", path.display()))?;
-            let id = std::fs::canonicalize(path)
+            let window = crate::reconstruct::video_window(args.start, args.duration);
+            let src = if is_video(path) {
+                ReplaySource::open_video(path, window.unwrap_or_default(), rate)
+                    .with_context(|| format!("opening the video {}", path.display()))?
+            } else if window.is_some() {
+                bail!(
+                    "--start and --duration select part of a video file, not of {}",
+                    path.display()
+                );
+            } else {
+                ReplaySource::open(path, rate)
+                    .with_context(|| format!("opening the replay {}", path.display()))?
+            };
+            let mut id = std::fs::canonicalize(path)
                 .unwrap_or_else(|_| path.clone())
                 .display()
                 .to_string();
+            // Another part of the same video is another scan, not one to resume.
+            if let Some(w) = window {
+                let duration = w.duration_s.map_or("end".into(), |d| d.to_string());
+                id += &format!("#start={},duration={duration}", w.start_s);
+            }
             (Box::new(src), format!("replay:{id}"), false)
         }
         None => {
