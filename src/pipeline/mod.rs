@@ -22,6 +22,7 @@
 //!    `[triangulate] max_depth_sigma`, and that its crossings do not dispute.
 
 pub mod anchors;
+mod live;
 pub mod planes;
 pub mod report;
 pub mod triangulate;
@@ -74,6 +75,7 @@ pub(crate) fn is_faint(curve: &Curve, min_strength: f32) -> bool {
 /// A scan between extraction and the cloud.
 pub struct Scan {
     frames: usize,
+    frames_with_curves: usize,
     planes: Vec<PlaneCurves>,
     /// Per curve (global id, in plane order): its plane and its index in that plane.
     curve_plane: Vec<u32>,
@@ -108,6 +110,7 @@ impl Scan {
             / camera.fx.max(camera.fy);
         Self {
             frames: 0,
+            frames_with_curves: 0,
             planes: Vec::new(),
             curve_plane: Vec::new(),
             curve_local: Vec::new(),
@@ -145,6 +148,7 @@ impl Scan {
     pub fn add_frame(&mut self, curves: Vec<Curve>) {
         let frame = self.frames as u32;
         self.frames += 1;
+        self.frames_with_curves += usize::from(!curves.is_empty());
         let admission = self.anchors.next_frame(!curves.is_empty());
         if admission.thinned {
             self.rebuild_anchor_index();
@@ -225,34 +229,49 @@ impl Scan {
     /// The crossings of curves, with each curve's point nearest the crossing and its
     /// ridge strength there, as the triangulation's crossing check needs them.
     fn curve_crossings(&self) -> Vec<cloud::CurveCrossing> {
-        let at = |cid: u32, u: [f64; 2]| {
+        (0..self.crossings.len())
+            .into_par_iter()
+            .map(|k| self.curve_crossing(k))
+            .collect()
+    }
+
+    /// Crossing `k` as the crossing check takes it.
+    fn curve_crossing(&self, k: usize) -> cloud::CurveCrossing {
+        let (c, [a, b]) = (&self.crossings[k], self.curve_ids[k]);
+        let near = |cid: u32| {
             let (p, local) = (
                 self.curve_plane[cid as usize],
                 self.curve_local[cid as usize],
             );
-            self.planes[p as usize].nearest_point(local as usize, u)
+            self.planes[p as usize].nearest_point(local as usize, c.u)
         };
-        self.crossings
-            .par_iter()
-            .zip(&self.curve_ids)
-            .map(|(c, &[a, b])| {
-                let at = [at(a, c.u), at(b, c.u)];
-                let strength = |cid: u32, i: u32| {
-                    self.curve(cid)
-                        .strength
-                        .get(i as usize)
-                        .copied()
-                        .unwrap_or(0.0)
-                };
-                cloud::CurveCrossing {
-                    a,
-                    b,
-                    u: c.u,
-                    at,
-                    strength: [strength(a, at[0]), strength(b, at[1])],
-                }
-            })
-            .collect()
+        let at = [near(a), near(b)];
+        let strength = |cid: u32, i: u32| {
+            self.curve(cid)
+                .strength
+                .get(i as usize)
+                .copied()
+                .unwrap_or(0.0)
+        };
+        cloud::CurveCrossing {
+            a,
+            b,
+            u: c.u,
+            at,
+            strength: [strength(a, at[0]), strength(b, at[1])],
+        }
+    }
+
+    /// The class of a crossing (see [`Self::evidence`]).
+    fn class_of(cc: &cloud::CurveCrossing, faint: [bool; 2], config: &Config) -> CrossingClass {
+        let min_local = config.solve.min_crossing_strength;
+        let strong =
+            !faint[0] && !faint[1] && cc.strength.iter().all(|s| *s >= min_local || *s == 0.0);
+        if strong {
+            CrossingClass::Strong
+        } else {
+            CrossingClass::Faint
+        }
     }
 
     /// Per curve, whether it is faint: no point reaches `solve.min_curve_strength`.
@@ -308,26 +327,18 @@ impl Scan {
                 laser: p.laser,
             });
         }
-        let min_local = config.solve.min_crossing_strength;
         let crossings = self
             .crossings
             .iter()
             .zip(curve_crossings)
             .filter(|(c, _)| c.sin_angle >= config.solve.min_sin_angle && tied(c))
             .filter_map(|(c, cc)| {
-                let strong = !faint[cc.a as usize]
-                    && !faint[cc.b as usize]
-                    && cc.strength.iter().all(|s| *s >= min_local || *s == 0.0);
                 Some(Observation {
                     a: plane_index[c.a as usize]?,
                     b: plane_index[c.b as usize]?,
                     u: c.u,
                     sin_angle: c.sin_angle,
-                    class: if strong {
-                        CrossingClass::Strong
-                    } else {
-                        CrossingClass::Faint
-                    },
+                    class: Self::class_of(cc, [faint[cc.a as usize], faint[cc.b as usize]], config),
                 })
             })
             .collect();
@@ -351,7 +362,7 @@ impl Scan {
 pub(crate) enum Planes<'a> {
     /// Self-calibrated: `plane_index[i]` is plane `i`'s index in the evidence.
     Calibrated {
-        calibration: Box<Calibration>,
+        calibration: &'a Calibration,
         plane_index: &'a [Option<u32>],
     },
     /// Given per plane, exactly (on the rays of the camera file).
@@ -368,25 +379,38 @@ pub fn reconstruct_curves(
     scale: &ScaleMode,
     colour_source: Option<&RgbImage>,
 ) -> Result<Reconstruction, PipelineError> {
-    let mut times = StageTimes::default();
-    let frames_with_laser = per_frame.iter().filter(|c| !c.is_empty()).count();
     let t = Instant::now();
     let mut scan = Scan::new(camera, config);
     for curves in per_frame {
         scan.add_frame(curves);
     }
     scan.refine_crossings(camera, config);
+    let build_s = t.elapsed().as_secs_f64();
+    reconstruct_scan(scan, build_s, camera, config, source, scale, colour_source)
+}
+
+/// [`reconstruct_curves`] of a scan built already (the live daemon builds its own frame
+/// by frame, with the same [`Scan::add_frame`]); `build_s` is the time that took.
+pub fn reconstruct_scan(
+    scan: Scan,
+    build_s: f64,
+    camera: &Camera,
+    config: &Config,
+    source: PlaneSource<'_>,
+    scale: &ScaleMode,
+    colour_source: Option<&RgbImage>,
+) -> Result<Reconstruction, PipelineError> {
+    let mut times = StageTimes::default();
+    let frames_with_laser = scan.frames_with_curves;
+    let t = Instant::now();
     let curve_crossings = scan.curve_crossings();
     let faint = scan.faint_curves(config);
     let (evidence, plane_index) = scan.evidence(camera, config, &curve_crossings, &faint);
-    times.intersect_s = t.elapsed().as_secs_f64();
+    times.intersect_s = build_s + t.elapsed().as_secs_f64();
 
     let t = Instant::now();
-    let planes = match source {
-        PlaneSource::SelfCalibrated => Planes::Calibrated {
-            calibration: Box::new(solve::calibrate(&evidence, &config.solve)?),
-            plane_index: &plane_index,
-        },
+    let calibration = match source {
+        PlaneSource::SelfCalibrated => Some(solve::calibrate(&evidence, &config.solve)?),
         PlaneSource::StartedFrom(known) => {
             let start: Vec<Option<Vector3<f64>>> = evidence
                 .planes
@@ -398,16 +422,16 @@ pub fn reconstruct_curves(
                         .and_then(|f| f[usize::from(slot.laser & 1)])
                 })
                 .collect();
-            Planes::Calibrated {
-                calibration: Box::new(solve::calibrate_from(
-                    &evidence,
-                    &config.solve,
-                    Some(&start),
-                )?),
-                plane_index: &plane_index,
-            }
+            Some(solve::calibrate_from(
+                &evidence,
+                &config.solve,
+                Some(&start),
+            )?)
         }
-        PlaneSource::Known(known) => Planes::Known(
+        PlaneSource::Known(_) => None,
+    };
+    let planes = match (&calibration, source) {
+        (_, PlaneSource::Known(known)) => Planes::Known(
             scan.planes()
                 .iter()
                 .map(|p| {
@@ -417,6 +441,13 @@ pub fn reconstruct_curves(
                 })
                 .collect(),
         ),
+        (calibration, _) => match calibration {
+            Some(calibration) => Planes::Calibrated {
+                calibration,
+                plane_index: &plane_index,
+            },
+            None => Planes::Known(Vec::new()),
+        },
     };
     times.solve_s = t.elapsed().as_secs_f64();
 
@@ -432,10 +463,7 @@ pub fn reconstruct_curves(
     let factor = cloud::scale_for(scale, &out.cloud, &out.pixels)?;
     cloud::apply_scale(&mut out.cloud, factor);
     times.triangulate_s = t.elapsed().as_secs_f64();
-    let calibration = match &planes {
-        Planes::Calibrated { calibration, .. } => Some(&**calibration),
-        Planes::Known(_) => None,
-    };
+    let calibration = calibration.as_ref();
     let warnings = doubts(calibration, &out.stats);
     for w in &warnings {
         tracing::warn!("{w}");

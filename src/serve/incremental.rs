@@ -1,26 +1,24 @@
 //! The live solver: curves arrive frame by frame, crossings accumulate, and the cloud
-//! grows in *epochs*.
+//! grows in *epochs*. It runs the offline pipeline's own stages, on a
+//! [`crate::pipeline::Scan`] built frame by frame exactly as `reconstruct` builds it:
 //!
-//! - Each new frame's curves go into the segment index at once; their crossings with
-//!   all earlier curves are found and refined (the same stages as
-//!   [`crate::reconstruct`]).
-//! - The first global solve runs, on a background thread named `solver-epoch`, as soon
-//!   as enough planes have arrived; it is retried as evidence grows until it succeeds.
-//!   That solution is epoch 1.
-//! - From then on every new plane gets its plane at once from its crossings with
-//!   solved planes (and its partner's orthogonality), and its points go out as growth
-//!   of the current epoch.
-//! - When the planes have grown by a factor (`solve_growth`) since the last global
-//!   solve, the global solution is re-estimated on the background thread over
-//!   everything so far, warm-started from the current epoch (its residuals give the
-//!   first robust weights instead of a fresh consensus search, [`solve::solve_warm`]),
-//!   while new frames keep being placed with the old one. The new
-//!   solution, extended over the planes that arrived meanwhile, is the next epoch: its
-//!   whole cloud is sent again.
-//! - At the end, [`Incremental::finish`] runs the offline pipeline's final stages over
-//!   every curve ([`crate::reconstruct::reconstruct_curves`]), so the final cloud is
-//!   exactly what `crossline reconstruct` makes of the same curves, whatever the order
-//!   and timing of the live epochs were.
+//! - Each new frame's curves go into the scan at once: their crossings with the anchors'
+//!   curves (and an anchor's with every curve) are found and refined.
+//! - An epoch is the estimator's answer on the evidence so far:
+//!   [`crate::solve::calibrate_from`] on the scan's evidence, on a background thread
+//!   named `solver-epoch`, warm-started from the last epoch's planes, and the offline
+//!   triangulation of every plane it determines (the same uncertainty rule). The first
+//!   is tried once `min_planes_first_solve` planes have arrived, the next whenever the
+//!   planes have grown by `solve_growth`; a failed one is retried at the same growth.
+//! - Between epochs no points go out: a frame's points come with the next epoch. (The
+//!   first attempt, fitting each new frame against the epoch's anchors as `reconstruct`
+//!   fits every frame that is no anchor, placed a few frames of a synthetic sweep 7-9 %
+//!   off while the same frames come out right offline; until that is understood the live
+//!   cloud grows by epochs only.)
+//! - At the end, [`Incremental::finish`] runs the offline pipeline's final stages on the
+//!   same scan ([`crate::pipeline::reconstruct_scan`]), so the final cloud is exactly
+//!   what `crossline reconstruct` makes of the same curves, whatever the order and
+//!   timing of the live epochs were.
 
 use std::sync::Arc;
 
@@ -29,15 +27,12 @@ use image::RgbImage;
 use nalgebra::Vector3;
 
 use crate::camera::Camera;
-use crate::cloud::{self, CurvePoints, ScaleMode};
+use crate::cloud::{self, ScaleMode};
 use crate::config::Config;
 use crate::extract::Curve;
-use crate::intersect::{Crossing, SegmentIndex};
-use crate::pipeline::{self as reconstruct, PlaneCurves, PlaneSource, Reconstruction};
-use crate::ply::Cloud;
+use crate::pipeline::{self, PlaneSource, Reconstruction, Scan};
 use crate::reconstruct::ReconstructError;
-use crate::solve::extend::{fit_plane, FitContext};
-use crate::solve::{self, Problem, Solution, SolveError, WarmStart};
+use crate::solve::{self, Calibration, SolveError};
 
 use super::stream::{self, EpochReason, Point};
 
@@ -61,12 +56,17 @@ pub struct Output {
     pub captured_nanos: u64,
 }
 
-/// The solution an epoch is built on, in the solver's given coordinates.
-struct EpochSolution {
-    planes_given: Vec<Option<Vector3<f64>>>,
-    ctx: FitContext,
-    lambda: f64,
-    factor: f64,
+/// The estimate an epoch is built on.
+struct Epoch {
+    calibration: Arc<Calibration>,
+    /// Per plane of the scan when it was made, its index in the calibration's evidence.
+    plane_index: Vec<Option<u32>>,
+}
+
+/// A background solve: its answer, and the evidence's plane index.
+struct Pending {
+    answer: Receiver<Result<Calibration, SolveError>>,
+    plane_index: Vec<Option<u32>>,
 }
 
 /// Live counters for status.
@@ -100,17 +100,10 @@ pub struct Incremental {
     params: IncrementalParams,
     scale: ScaleMode,
     colour: Option<Arc<RgbImage>>,
-    /// Frames added so far (their curves live in `planes`, once).
-    frames: usize,
-    planes: Vec<PlaneCurves>,
-    partner: Vec<Option<u32>>,
-    index: SegmentIndex,
-    crossings: Vec<Crossing>,
-    /// Per plane: (other plane, crossing index).
-    adjacency: Vec<Vec<(u32, usize)>>,
+    scan: Scan,
     epoch: u32,
-    solution: Option<EpochSolution>,
-    pending: Option<(Receiver<Result<Solution, SolveError>>, usize)>,
+    current: Option<Epoch>,
+    pending: Option<Pending>,
     next_solve_at: usize,
     /// The last epoch's focal estimate was too uncertain (warned once when it turns so).
     focal_uncertain: bool,
@@ -124,27 +117,16 @@ impl Incremental {
         params: IncrementalParams,
         scale: ScaleMode,
     ) -> Self {
-        let index = SegmentIndex::for_image(
-            camera.width,
-            camera.height,
-            camera.fx.max(camera.fy),
-            config.solve.min_sin_angle,
-        );
         Self {
             next_solve_at: params.min_planes_first_solve.max(2),
+            scan: Scan::new(&camera, &config),
             camera,
             config,
             params,
             scale,
             colour: None,
-            frames: 0,
-            planes: Vec::new(),
-            partner: Vec::new(),
-            index,
-            crossings: Vec::new(),
-            adjacency: Vec::new(),
             epoch: 0,
-            solution: None,
+            current: None,
             pending: None,
             focal_uncertain: false,
             counts: SolverCounts::default(),
@@ -157,56 +139,20 @@ impl Incremental {
     }
 
     pub fn frames(&self) -> usize {
-        self.frames
+        self.scan.frames()
     }
 
     /// Adds the curves of the next frame (frames must come in index order).
     pub fn add_frame(&mut self, curves: Vec<Curve>, captured_nanos: u64) -> Output {
-        let frame = self.frames as u32;
-        self.frames += 1;
         self.counts.frames += 1;
         self.counts.curves += curves.len() as u64;
-        let first_new = self.planes.len();
-        for plane in PlaneCurves::of_frame(frame, curves) {
-            self.planes.push(plane);
-            self.partner.push(None);
-            self.adjacency.push(Vec::new());
-        }
-        if self.planes.len() - first_new == 2 {
-            self.partner[first_new] = Some(first_new as u32 + 1);
-            self.partner[first_new + 1] = Some(first_new as u32);
-        }
         let t = std::time::Instant::now();
-        // Crossings of the new curves with everything before (and each other).
-        let radius = self.config.intersect.refine_radius_px / self.camera.fx.max(self.camera.fy);
-        let mut fresh = Vec::new();
-        for id in first_new..self.planes.len() {
-            // Faint curves do not shape the planes (as in `reconstruct_curves`); their
-            // points wait for the final solve, where a crossing must confirm them.
-            for curve in &self.planes[id].curves {
-                if !reconstruct::is_faint(curve, self.config.solve.min_curve_strength) {
-                    self.index
-                        .insert_into(id as u32, &curve.polyline, &mut fresh);
-                }
-            }
-        }
+        self.scan.add_frame(curves);
         let t_refine = std::time::Instant::now();
-        for mut c in fresh {
-            if radius > 0.0 {
-                let a = self.planes[c.a as usize].dense_near(c.u, radius);
-                let b = self.planes[c.b as usize].dense_near(c.u, radius);
-                if let Some(u) = crate::intersect::refine_crossing(a, b, c.u, radius) {
-                    c.u = u;
-                }
-            }
-            let k = self.crossings.len();
-            self.adjacency[c.a as usize].push((c.b, k));
-            self.adjacency[c.b as usize].push((c.a, k));
-            self.crossings.push(c);
-        }
+        self.scan.refine_crossings(&self.camera, &self.config);
         self.counts.refine_s += t_refine.elapsed().as_secs_f64();
-        self.counts.planes = self.planes.len() as u64;
-        self.counts.crossings = self.crossings.len() as u64;
+        self.counts.planes = self.scan.planes().len() as u64;
+        self.counts.crossings = self.scan.num_crossings() as u64;
         self.counts.crossings_s += t.elapsed().as_secs_f64();
 
         let mut out = Output {
@@ -218,12 +164,6 @@ impl Incremental {
             out.epoch = Some((epoch, reason));
             out.points = points;
             self.counts.adopt_s += t.elapsed().as_secs_f64();
-        } else if self.solution.is_some() {
-            self.extend(first_new..self.planes.len());
-            let t2 = std::time::Instant::now();
-            self.counts.extend_s += (t2 - t).as_secs_f64();
-            out.points = self.points_of(first_new..self.planes.len());
-            self.counts.triangulate_s += t2.elapsed().as_secs_f64();
         }
         self.counts.points += out.points.len() as u64;
         self.maybe_start_solve();
@@ -232,33 +172,36 @@ impl Incremental {
 
     /// Starts a background global solve when the planes have grown enough.
     fn maybe_start_solve(&mut self) {
-        if self.pending.is_some() || self.planes.len() < self.next_solve_at {
+        let n = self.scan.planes().len();
+        if self.pending.is_some() || n < self.next_solve_at {
             return;
         }
-        let n = self.planes.len();
-        let crossings = self.crossings.clone();
-        let partner = self.partner.clone();
+        let (evidence, plane_index) = self.scan.solve_input(&self.camera, &self.config);
+        // Warm start: the current epoch's planes where it has them.
+        let warm: Option<Vec<Option<Vector3<f64>>>> = self.current.as_ref().map(|e| {
+            let mut warm = vec![None; evidence.planes.len()];
+            for (i, k) in plane_index.iter().enumerate() {
+                if let (Some(k), Some(Some(old))) = (k, e.plane_index.get(i)) {
+                    warm[*k as usize] = e.calibration.plane(*old as usize);
+                }
+            }
+            warm
+        });
         let params = self.config.solve.clone();
-        let focal_px = self.camera.fx.max(self.camera.fy);
-        // Warm start from the current epoch's planes.
-        let warm: Option<Vec<Option<Vector3<f64>>>> =
-            self.solution.as_ref().map(|s| s.planes_given.clone());
         let (tx, rx) = bounded(1);
         let spawned = std::thread::Builder::new()
             .name("solver-epoch".into())
             .stack_size(super::WORKER_STACK_BYTES)
             .spawn(move || {
-                let problem = Problem {
-                    num_curves: n,
-                    crossings: &crossings,
-                    partner: &partner,
-                    focal_px,
-                };
-                let warm = warm.as_deref().map(|planes| WarmStart { planes });
-                let _ = tx.send(solve::solve_warm(&problem, &params, warm.as_ref()));
+                let _ = tx.send(solve::calibrate_from(&evidence, &params, warm.as_deref()));
             });
         match spawned {
-            Ok(_) => self.pending = Some((rx, n)),
+            Ok(_) => {
+                self.pending = Some(Pending {
+                    answer: rx,
+                    plane_index,
+                })
+            }
             Err(e) => tracing::warn!("cannot start a background solve: {e}"),
         }
         self.next_solve_at = ((n as f64) * self.params.solve_growth.max(1.05)).ceil() as usize;
@@ -266,50 +209,47 @@ impl Incremental {
 
     /// Adopts a finished background solve; returns the new epoch and its points.
     fn poll_solve(&mut self) -> Option<(u32, EpochReason, Vec<Point>)> {
-        let (rx, n) = self.pending.as_ref()?;
-        let n = *n;
-        let result = match rx.try_recv() {
+        let pending = self.pending.as_ref()?;
+        let result = match pending.answer.try_recv() {
             Ok(r) => r,
             Err(TryRecvError::Empty) => return None,
             Err(TryRecvError::Disconnected) => Err(SolveError::Degenerate("solver thread died")),
         };
-        self.pending = None;
+        let pending = self.pending.take()?;
         self.counts.global_solves += 1;
-        let sol = match result {
-            Ok(s) if s.fit_context.is_some() => s,
-            Ok(_) => return None,
+        let calibration = match result {
+            Ok(c) => c,
             Err(e) => {
                 self.counts.failed_global_solves += 1;
-                tracing::info!(planes = n, "global solve not possible yet: {e}");
+                tracing::info!(
+                    planes = pending.plane_index.len(),
+                    "global solve not possible yet: {e}"
+                );
                 return None;
             }
         };
-        let lambda = sol.focal_scale;
-        let mut planes_given = sol.given_planes();
-        planes_given.resize(self.planes.len(), None);
-        let ctx = sol.fit_context?;
-        self.counts.planes_in_global_solve = sol.global.len() as u64;
-        self.counts.residual_rms_px = sol.residual_rms * self.camera.fx.max(self.camera.fy);
-        // Said once when the solve turns suspect, not at every epoch.
-        if self.counts.orthogonality_rms_deg <= crate::solve::SUSPECT_ORTHOGONALITY_DEG {
-            if let Some(warning) = crate::solve::orthogonality_warning(sol.orthogonality_rms_deg) {
-                tracing::warn!(epoch = self.epoch + 1, "{warning}");
-            }
-        }
-        self.counts.orthogonality_rms_deg = sol.orthogonality_rms_deg;
-        let focal_warning = crate::solve::focal_warning(sol.focal_scale, sol.focal_scale_std);
+        let summary = &calibration.summary;
+        self.counts.planes_in_global_solve = summary.planes_in_global_start as u64;
+        self.counts.residual_rms_px = summary.spreads.map_or(0.0, |s| s.crossing_px[0]);
+        let focal_warning = solve::focal_warning(summary.focal_scale, summary.focal_scale_std);
         if let (Some(warning), false) = (&focal_warning, self.focal_uncertain) {
             tracing::warn!(epoch = self.epoch + 1, "{warning}");
         }
         self.focal_uncertain = focal_warning.is_some();
-        self.solution = Some(EpochSolution {
-            planes_given,
-            ctx,
-            lambda,
-            factor: 1.0,
+        let out = self.scan.epoch_cloud(
+            &calibration,
+            &pending.plane_index,
+            &self.config,
+            self.colour.as_deref(),
+        );
+        let factor = cloud::scale_for(&self.scale, &out.cloud, &out.pixels).unwrap_or(1.0);
+        let mut cloud = out.cloud;
+        cloud::apply_scale(&mut cloud, factor);
+        self.counts.planes_solved = out.planes_with_points as u64;
+        self.current = Some(Epoch {
+            calibration: Arc::new(calibration),
+            plane_index: pending.plane_index,
         });
-        // Planes that arrived while it ran.
-        self.extend(n..self.planes.len());
         let reason = if self.epoch == 0 {
             EpochReason::First
         } else {
@@ -317,122 +257,21 @@ impl Incremental {
         };
         self.epoch += 1;
         self.counts.epoch = self.epoch;
-        // The epoch's scale from its whole cloud.
-        let (mut cloud, pixels) = self.cloud_of(0..self.planes.len(), 1.0);
-        let factor = cloud::scale_for(&self.scale, &cloud, &pixels).unwrap_or(1.0);
-        if let Some(s) = self.solution.as_mut() {
-            s.factor = factor;
-        }
-        cloud::apply_scale(&mut cloud, factor);
+        let points = stream::points_of(&cloud, 0..cloud.len());
         self.counts.points = 0;
-        Some((
-            self.epoch,
-            reason,
-            stream::points_of(&cloud, 0..cloud.len()),
-        ))
+        Some((self.epoch, reason, points))
     }
 
-    /// Fits the planes `range` (new since the epoch's solve) from solved neighbours.
-    fn extend(&mut self, range: std::ops::Range<usize>) {
-        let Some(sol) = self.solution.as_mut() else {
-            return;
-        };
-        sol.planes_given.resize(self.planes.len(), None);
-        // The better-connected plane of a cross first, so its partner can use it.
-        let mut order: Vec<usize> = range.collect();
-        let known_of = |c: usize, planes: &[Option<Vector3<f64>>]| -> Vec<(usize, Vector3<f64>)> {
-            self.adjacency[c]
-                .iter()
-                .filter_map(|&(o, k)| planes[o as usize].map(|v| (k, v)))
-                .collect()
-        };
-        order.sort_by_key(|&c| std::cmp::Reverse(known_of(c, &sol.planes_given).len()));
-        for c in order {
-            let known = known_of(c, &sol.planes_given);
-            let partner = self.partner[c].and_then(|p| sol.planes_given[p as usize]);
-            if known.len() < sol.ctx.min_crossings && partner.is_none() {
-                continue;
-            }
-            if let Some(fit) = fit_plane(&self.crossings, &known, partner, &sol.ctx, None) {
-                if (fit.outliers.len() as f64) <= 0.5 * known.len() as f64 {
-                    sol.planes_given[c] = Some(fit.plane);
-                }
-            }
-        }
-        self.counts.planes_solved = sol.planes_given.iter().filter(|p| p.is_some()).count() as u64;
-    }
-
-    /// The cloud of planes `range` with the current solution, scaled by `factor`.
-    fn cloud_of(&self, range: std::ops::Range<usize>, factor: f64) -> (Cloud, Vec<[f32; 2]>) {
-        let mut cloud = Cloud {
-            colors: Some(Vec::new()),
-            frames: Some(Vec::new()),
-            lasers: Some(Vec::new()),
-            ..Default::default()
-        };
-        let mut pixels = Vec::new();
-        let Some(sol) = &self.solution else {
-            return (cloud, pixels);
-        };
-        let lambda = sol.lambda;
-        for id in range {
-            // In the given coordinates, those of the curves' points: the true rays are
-            // (x/λ, y/λ, 1), so X and Y are scaled by 1/λ below.
-            let Some(v) = sol.planes_given.get(id).copied().flatten() else {
-                continue;
-            };
-            let plane = &self.planes[id];
-            for curve in &plane.curves {
-                if reconstruct::is_faint(curve, self.config.solve.min_curve_strength) {
-                    continue;
-                }
-                cloud::push_curve(
-                    &mut cloud,
-                    Some(&mut pixels),
-                    &v,
-                    CurvePoints {
-                        frame: plane.frame,
-                        laser: plane.laser,
-                        points: &curve.points,
-                        points_px: &curve.points_px,
-                        depth_sigmas: None,
-                    },
-                    self.colour.as_deref(),
-                    &self.config.triangulate,
-                );
-            }
-        }
-        let (sx, sz) = ((factor / lambda) as f32, factor as f32);
-        for p in &mut cloud.points {
-            p[0] *= sx;
-            p[1] *= sx;
-            p[2] *= sz;
-        }
-        (cloud, pixels)
-    }
-
-    fn points_of(&self, range: std::ops::Range<usize>) -> Vec<Point> {
-        let factor = self.solution.as_ref().map_or(1.0, |s| s.factor);
-        let (cloud, _) = self.cloud_of(range, factor);
-        stream::points_of(&cloud, 0..cloud.len())
-    }
-
-    /// The final solve over every curve, exactly as `crossline reconstruct` does it.
-    /// The curves move into it (each is kept once, and this is the end of the scan):
-    /// afterwards no more frames can be added.
+    /// The final solve over every curve, exactly as `crossline reconstruct` does it on
+    /// the same scan. Afterwards no more frames can be added.
     pub fn finish(&mut self) -> Result<Reconstruction, ReconstructError> {
         // A background solve still running is superseded.
         self.pending = None;
-        // Frame by frame, each laser's curves in their order: the same planes, in the
-        // same order, that `reconstruct_curves` makes of the frames' curve lists.
-        let mut per_frame: Vec<Vec<Curve>> = vec![Vec::new(); self.frames];
-        for p in std::mem::take(&mut self.planes) {
-            if let Some(f) = per_frame.get_mut(p.frame as usize) {
-                f.extend(p.curves);
-            }
-        }
-        let rec = reconstruct::reconstruct_curves(
-            per_frame,
+        self.current = None;
+        let scan = std::mem::replace(&mut self.scan, Scan::new(&self.camera, &self.config));
+        let rec = pipeline::reconstruct_scan(
+            scan,
+            self.counts.crossings_s,
             &self.camera,
             &self.config,
             PlaneSource::SelfCalibrated,
@@ -525,5 +364,91 @@ mod tests {
             "a point {:.3} % off the surface",
             100.0 * worst
         );
+    }
+
+    /// Curves of the synthetic path scan, frame by frame, as extracted.
+    fn path_frames(
+        camera: &Camera,
+        config: &Config,
+    ) -> (crate::solve::synthetic::PathScan, Vec<Vec<Curve>>) {
+        let scan = crate::solve::synthetic::path_scan(&crate::solve::synthetic::PathSpec {
+            frames: 80,
+            ..Default::default()
+        });
+        let strength = 2.0 * config.solve.min_curve_strength;
+        let frames = scan
+            .planes
+            .iter()
+            .map(|p| {
+                (0..2)
+                    .filter_map(|l| {
+                        let pts = curve_polyline(&scan.scene, &p[l], 1.0 / camera.fx)?;
+                        Some(Curve {
+                            laser: l as u8,
+                            points_px: pts
+                                .iter()
+                                .map(|q| camera.pixel_from_normalized(q[0], q[1]).map(|c| c as f32))
+                                .collect(),
+                            strength: vec![strength; pts.len()],
+                            polyline: pts.clone(),
+                            points: pts,
+                        })
+                    })
+                    .collect()
+            })
+            .collect();
+        (scan, frames)
+    }
+
+    /// The live solver runs the offline estimator: with anchors thinned as the scan grows,
+    /// its epochs lie on the surface, and its final
+    /// cloud is `reconstruct`'s of the same curves, point for point.
+    #[test]
+    fn live_epochs_lie_on_the_surface_and_the_final_cloud_is_reconstructs() {
+        let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+        let mut config = Config::default();
+        config.solve.max_anchor_poses = 40;
+        let (scan, frames) = path_frames(&camera, &config);
+        let mut solver = Incremental::new(
+            camera.clone(),
+            config.clone(),
+            IncrementalParams {
+                min_planes_first_solve: 40,
+                solve_growth: 1.5,
+            },
+            ScaleMode::Factor { factor: 1.0 },
+        );
+        let (mut epochs, mut epoch_points) = (0, Vec::new());
+        for curves in frames.clone() {
+            let out = solver.add_frame(curves, 0);
+            if out.epoch.is_some() {
+                epochs += 1;
+            } else {
+                growth += out.points.len();
+            }
+            epoch_points.extend(out.points.iter().map(|p| p.xyz));
+            // Give the background solve time, as frames at 30 fps would.
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        assert!(epochs >= 2, "{epochs} epochs");
+        let worst = worst_off_surface(&scan.scene, &epoch_points);
+        assert!(
+            worst < 1e-3,
+            "a live point {:.3} % off the surface",
+            100.0 * worst
+        );
+        let live = solver.finish().expect("final solve");
+        let offline = crate::pipeline::reconstruct_curves(
+            frames,
+            &camera,
+            &config,
+            PlaneSource::SelfCalibrated,
+            &ScaleMode::Factor { factor: 1.0 },
+            None,
+        )
+        .expect("offline");
+        assert!(live.cloud.len() > 10_000);
+        assert_eq!(live.cloud.points, offline.cloud.points);
+        assert_eq!(live.planes, offline.planes);
     }
 }

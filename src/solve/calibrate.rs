@@ -221,10 +221,13 @@ pub fn calibrate_from(
     // poses fitted against them after.
     let split = AnchorSplit::of(evidence);
     let sub = &split.evidence;
+    // The linear start sees every crossing (those of the other frames with the anchors
+    // too): among the anchors alone a sparse scan's crossings may be too few for its
+    // global subset.
     let (start, planes) = match given {
         Some(planes) => (super::Solution::empty(), split.planes_of(planes)),
-        None => match linear_start(sub, params) {
-            Ok(start) => start,
+        None => match linear_start(evidence, params) {
+            Ok((start, planes)) => (start, split.planes_of(&planes)),
             // Nothing for the null space to stand on (a table top, a standing hand in a
             // plain room): start from the hand's centre instead.
             Err(e @ (SolveError::TooFewPlanes { .. } | SolveError::TooFewCrosses { .. })) => {

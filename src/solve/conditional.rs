@@ -26,6 +26,7 @@
 //! smaller than the joint one.
 
 use faer::Mat;
+
 use nalgebra::{SMatrix, SVector, Vector3};
 use rayon::prelude::*;
 
@@ -353,24 +354,8 @@ fn ties_of(
         .collect()
 }
 
-/// Starts for pose `f`: the planes its ties give linearly, and the anchor nearest in
-/// time.
-fn starts(
-    ev: &Evidence,
-    anchor_est: &Estimate,
-    split: &AnchorSplit,
-    f: usize,
-    ties: &[Tie],
-) -> Vec<CrossPose> {
-    let anchors = &anchor_est.poses;
-    let frame = ev.pose_frames[f];
-    let nearest = split
-        .anchor_of_pose
-        .iter()
-        .enumerate()
-        .filter_map(|(p, a)| a.map(|a| (ev.pose_frames[p].abs_diff(frame), a as usize)))
-        .min()
-        .map(|(_, a)| anchors[a]);
+/// Starts for a pose: the planes its ties give linearly, and the anchor nearest in time.
+fn starts(anchors: &[CrossPose], nearest: Option<CrossPose>, ties: &[Tie]) -> Vec<CrossPose> {
     let mut out = Vec::new();
     let mut planes = [None, None];
     for (laser, plane) in planes.iter_mut().enumerate() {
@@ -414,36 +399,33 @@ struct Fitted {
     standardised: Vec<(usize, f64)>,
 }
 
-/// Pose `f` fitted against the anchors (see the module docs); `None` when it has no
-/// tie or no start.
-fn fit_pose(
+/// A pose fitted on `ties` against the jointly estimated poses `anchors` (in the order
+/// of their covariance `cov`), see the module docs; `None` without a tie or a start.
+fn fit_ties(
     ev: &Evidence,
-    split: &AnchorSplit,
-    anchor_est: &Estimate,
+    anchors: &[CrossPose],
+    cov: &Mat<f64>,
+    lambda: f64,
     params: &EstimateParams,
-    spreads: &Spreads,
-    crossings: &[u32],
-    f: usize,
+    ties: &[Tie],
+    nearest: Option<CrossPose>,
 ) -> Option<Fitted> {
-    let lambda = anchor_est.focal_scale;
-    let anchors = &anchor_est.poses;
-    let ties = ties_of(ev, split, anchor_est, spreads, crossings, f);
     if ties.is_empty() {
         return None;
     }
-    let best = starts(ev, anchor_est, split, f, &ties)
+    let best = starts(anchors, nearest, ties)
         .into_iter()
-        .map(|s| minimise(s, &ties, anchors, ev, lambda, params))
+        .map(|s| minimise(s, ties, anchors, ev, lambda, params))
         .min_by(|a, b| a.cost.total_cmp(&b.cost))?;
     let loss = Loss::Cauchy(params.crossing_loss);
-    let n_a = anchor_est.covariance.nrows();
+    let n_a = cov.nrows();
     let focal = params.estimate_focal.then(|| n_a - 1);
     // H_ff, H_fA (by anchor pose; the focal scale's column apart), the scatter's C_ff.
     let (mut h, mut c) = (M6::zeros(), M6::zeros());
     let mut blocks: Vec<(usize, M6)> = Vec::new();
     let mut b_focal = V6::zeros();
     let mut counted = 0;
-    for tie in &ties {
+    for tie in ties {
         let Some(t) = term(&best.pose, tie, anchors, ev.focal_px, lambda) else {
             continue;
         };
@@ -467,7 +449,7 @@ fn fit_pose(
     }
     let h_inv = with_ridge(&h).try_inverse()?;
     let mut standardised = Vec::new();
-    for tie in &ties {
+    for tie in ties {
         let Some(t) = term(&best.pose, tie, anchors, ev.focal_px, lambda) else {
             continue;
         };
@@ -491,7 +473,6 @@ fn fit_pose(
         idx.push(fi);
         bcols.push(b_focal);
     }
-    let cov = &anchor_est.covariance;
     // T = B Σ[idx, :] restricted to idx columns, then M = T Bᵀ; and B Σ[idx, λ].
     let mut m = M6::zeros();
     let mut b_sigma_focal = V6::zeros();
@@ -568,12 +549,30 @@ pub fn complete(
             }
         }
     }
+    let nearest_anchor = |f: usize| {
+        let frame = ev.pose_frames[f];
+        split
+            .anchor_of_pose
+            .iter()
+            .enumerate()
+            .filter_map(|(p, a)| a.map(|a| (ev.pose_frames[p].abs_diff(frame), a as usize)))
+            .min()
+            .map(|(_, a)| anchor_est.poses[a])
+    };
     let fit_all = |spreads: &Spreads| -> Vec<Option<Fitted>> {
         (0..ev.num_poses())
             .into_par_iter()
             .map(|f| match split.anchor_of_pose[f] {
                 Some(_) => None,
-                None => fit_pose(ev, split, &anchor_est, params, spreads, &by_pose[f], f),
+                None => fit_ties(
+                    ev,
+                    &anchor_est.poses,
+                    &anchor_est.covariance,
+                    anchor_est.focal_scale,
+                    params,
+                    &ties_of(ev, split, &anchor_est, spreads, &by_pose[f], f),
+                    nearest_anchor(f),
+                ),
             })
             .collect()
     };
@@ -589,16 +588,6 @@ pub fn complete(
         fitted = fit_all(&spreads);
     }
     let unknown = PoseMarginal::from_diagonal_element(f64::INFINITY);
-    let nearest_anchor = |f: usize| {
-        let frame = ev.pose_frames[f];
-        split
-            .anchor_of_pose
-            .iter()
-            .enumerate()
-            .filter_map(|(p, a)| a.map(|a| (ev.pose_frames[p].abs_diff(frame), a as usize)))
-            .min()
-            .map(|(_, a)| anchor_est.poses[a])
-    };
     let mut poses = Vec::with_capacity(ev.num_poses());
     let mut marginals = Vec::with_capacity(ev.num_poses());
     let mut scatter = Vec::with_capacity(ev.num_poses());
@@ -669,6 +658,7 @@ pub fn complete(
         cost,
         iterations: anchor_est.iterations,
         redundancy: anchor_est.redundancy,
-        covariance: Mat::zeros(0, 0),
+        covariance: anchor_est.covariance,
+        joint_of_pose: split.anchor_of_pose.clone(),
     }
 }

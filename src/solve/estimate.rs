@@ -115,8 +115,11 @@ pub struct Estimate {
     pub redundancy: [f64; 5],
     /// The covariance of every unknown estimated jointly (six a pose, then the focal
     /// scale when estimated), which the poses fitted against these need
-    /// ([`super::conditional`]); empty in an estimate completed by them.
+    /// ([`super::conditional`]): the anchors' where the other poses were fitted.
     pub covariance: Mat<f64>,
+    /// Per pose, its place among the jointly estimated poses (its unknowns are six from
+    /// six times it in [`Self::covariance`]); `None` for a fitted pose.
+    pub joint_of_pose: Vec<Option<u32>>,
 }
 
 impl Estimate {
@@ -124,39 +127,58 @@ impl Estimate {
     /// on laser `laser` of pose `pose`, from the pose's marginal covariance (the focal
     /// scale's included). Infinite where the plane gives no depth there.
     pub fn depth_sigma(&self, pose: usize, laser: usize, ray: &Ray) -> f64 {
-        let p = &self.poses[pose];
-        let lin = p.linearise(laser);
-        let rho = lin.n.dot(&ray.r) / lin.d;
-        if !(rho.is_finite() && rho > 0.0) {
-            return f64::INFINITY;
-        }
-        // ρ = n·r / d: ∂ρ/∂θ = (n × r)/d − (ρ/d)(n × C), ∂ρ/∂C = −(ρ/d) n,
-        // ∂ρ/∂λ = n·∂r/∂λ / d.
-        let dt = lin.n.cross(&ray.r) / lin.d - lin.dd_dtheta * (rho / lin.d);
-        let dc = -lin.n * (rho / lin.d);
-        let dl = lin.n.dot(&ray.dr_dscale) / lin.d;
-        let j = SVector::<f64, 7>::from_column_slice(&[dt.x, dt.y, dt.z, dc.x, dc.y, dc.z, dl]);
-        let var = (j.transpose() * self.marginals[pose] * j)[(0, 0)];
-        if var.is_nan() || var < 0.0 {
-            return f64::INFINITY;
-        }
-        if var == 0.0 {
-            return 0.0;
-        }
-        // Of the information the estimate has about this depth (1/var, along the direction
-        // z = Σq/var that estimates it), the crossings' scatter along their lines accounts
-        // for zᵀCz = qᵀ[ΣCΣ]q / var², a share `scatter` of it, give or take its own
-        // fluctuation over n crossings (three deviations of √(2/n) each): only the rest
-        // is evidence.
-        let scatter = (j.transpose() * self.scatter[pose] * j)[(0, 0)] / var;
-        let n = self.scatter_crossings[pose].max(1) as f64;
-        let margin = 1.0 + SCATTER_DEVIATIONS * (2.0 / n).sqrt();
-        let left = 1.0 - margin * scatter;
-        if left.is_nan() || left <= 0.0 {
-            return f64::INFINITY;
-        }
-        (var / left).sqrt() / rho
+        depth_sigma_of(
+            &self.poses[pose],
+            &self.marginals[pose],
+            &self.scatter[pose],
+            self.scatter_crossings[pose],
+            laser,
+            ray,
+        )
     }
+}
+
+/// [`Estimate::depth_sigma`] of one pose, from its marginal covariance, its scatter
+/// information and its number of crossings.
+pub fn depth_sigma_of(
+    p: &CrossPose,
+    marginal: &PoseMarginal,
+    scatter: &PoseMarginal,
+    crossings: usize,
+    laser: usize,
+    ray: &Ray,
+) -> f64 {
+    let lin = p.linearise(laser);
+    let rho = lin.n.dot(&ray.r) / lin.d;
+    if !(rho.is_finite() && rho > 0.0) {
+        return f64::INFINITY;
+    }
+    // ρ = n·r / d: ∂ρ/∂θ = (n × r)/d − (ρ/d)(n × C), ∂ρ/∂C = −(ρ/d) n,
+    // ∂ρ/∂λ = n·∂r/∂λ / d.
+    let dt = lin.n.cross(&ray.r) / lin.d - lin.dd_dtheta * (rho / lin.d);
+    let dc = -lin.n * (rho / lin.d);
+    let dl = lin.n.dot(&ray.dr_dscale) / lin.d;
+    let j = SVector::<f64, 7>::from_column_slice(&[dt.x, dt.y, dt.z, dc.x, dc.y, dc.z, dl]);
+    let var = (j.transpose() * marginal * j)[(0, 0)];
+    if var.is_nan() || var < 0.0 {
+        return f64::INFINITY;
+    }
+    if var == 0.0 {
+        return 0.0;
+    }
+    // Of the information the estimate has about this depth (1/var, along the direction
+    // z = Σq/var that estimates it), the crossings' scatter along their lines accounts
+    // for zᵀCz = qᵀ[ΣCΣ]q / var², a share `scatter` of it, give or take its own
+    // fluctuation over n crossings (three deviations of √(2/n) each): only the rest
+    // is evidence.
+    let share = (j.transpose() * scatter * j)[(0, 0)] / var;
+    let n = crossings.max(1) as f64;
+    let margin = 1.0 + SCATTER_DEVIATIONS * (2.0 / n).sqrt();
+    let left = 1.0 - margin * share;
+    if left.is_nan() || left <= 0.0 {
+        return f64::INFINITY;
+    }
+    (var / left).sqrt() / rho
 }
 
 /// Where the minimisation starts.
@@ -818,6 +840,7 @@ pub fn estimate(
         iterations,
         redundancy,
         covariance: cov,
+        joint_of_pose: (0..evidence.num_poses() as u32).map(Some).collect(),
     })
 }
 

@@ -167,7 +167,7 @@ impl Default for SolveParams {
     fn default() -> Self {
         Self {
             max_global_planes: 400,
-            max_anchor_poses: 200,
+            max_anchor_poses: 300,
             min_crossings_per_plane: 3,
             min_global_crossings: 6,
             min_sin_angle: 0.1,
