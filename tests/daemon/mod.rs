@@ -23,6 +23,11 @@ pub(crate) fn camera() -> PathBuf {
 
 /// `crossline serve --replay DUMP` with its sockets and outputs under `dir`.
 pub(crate) fn serve(dir: &Path, input: &Path, rate: &str) -> Command {
+    serve_on(dir, input, rate, "")
+}
+
+/// [`serve`] with the live view on `http` ("" for none).
+pub(crate) fn serve_on(dir: &Path, input: &Path, rate: &str, http: &str) -> Command {
     let mut cmd = crossline();
     cmd.arg("serve")
         .arg("--camera")
@@ -40,7 +45,8 @@ pub(crate) fn serve(dir: &Path, input: &Path, rate: &str) -> Command {
         .arg(dir.join("status.sock"))
         .arg("--stream-unix")
         .arg(dir.join("cloud.sock"))
-        .args(["--stream-tcp", ""]);
+        .args(["--stream-tcp", ""])
+        .args(["--http", http]);
     cmd
 }
 
