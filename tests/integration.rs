@@ -4,6 +4,7 @@ mod daemon;
 mod faults;
 mod util;
 mod video;
+mod web;
 
 use std::path::Path;
 
