@@ -2,6 +2,7 @@
 
 mod daemon;
 mod faults;
+mod logs;
 mod util;
 mod video;
 mod web;
