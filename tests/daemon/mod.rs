@@ -101,6 +101,8 @@ fn replay_streams_status_and_clients_end_with_the_final_cloud() {
         .spawn()
         .expect("spawn serve");
     wait_for(&dir.join("cloud.sock"), Duration::from_secs(20));
+    // Bound just after the stream's socket: under load it can be a moment later.
+    wait_for(&dir.join("status.sock"), Duration::from_secs(20));
     let early = follow(dir.join("cloud.sock"));
 
     // Status lines arrive and parse, and `crossline status` reads them too.
