@@ -2,8 +2,10 @@
 
 mod daemon;
 mod faults;
+mod logs;
 mod util;
 mod video;
+mod web;
 
 use std::path::Path;
 

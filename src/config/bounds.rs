@@ -61,6 +61,7 @@ pub const BOUNDS: &[(&str, f64, f64)] = &[
     ("serve.stream_clients_max", 1.0, 4096.0),
     ("serve.drain_timeout_s", 0.0, 3600.0),
     ("serve.reconnect_max_backoff_s", 0.1, 3600.0),
+    ("serve.http_clients_max", 1.0, 4096.0),
 ];
 
 /// Longest list any key takes (lasers, formats, hue ranges).

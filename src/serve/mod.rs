@@ -1,10 +1,11 @@
 //! The live daemon (`crossline serve`): camera or replay in, growing cloud out.
 //!
 //! ```text
-//!  capture ──ring (preallocated slots)──▶ extract-0..N ──bounded──▶ solver ──▶ hub ──▶ net (tokio)
+//!  capture ──ring (preallocated slots)──▶ extract-0..N ──bounded──▶ solver ──▶ hub ──▶ net, web (tokio)
 //!     │  (drops + counts when full)          (decode, background,     (reorder,          stream clients
 //!     └─▶ recording (dump)                    Steger, colour, link)    incremental,      status socket
 //!                                                                      checkpoint)
+//!                                                                                        live view pages
 //! ```
 //!
 //! - `capture` never waits on the workers (except in a lossless replay, which has no
@@ -16,6 +17,8 @@
 //!   results are the same for any number of workers.
 //! - `solver` puts results back in frame order, checkpoints them, and feeds the
 //!   [`incremental`] solver, whose output goes to the [`net::Hub`].
+//! - `web` serves the live view in the browser ([`web`]): each page is one more
+//!   subscriber of the hub, under the same bounds as the stream clients.
 //! - `status` publishes a status line every interval and on events, and talks to
 //!   systemd (`READY`, `STATUS`, `WATCHDOG` from pipeline progress).
 //!
@@ -29,6 +32,7 @@ pub mod net;
 pub mod notify;
 pub mod status;
 pub mod stream;
+pub mod web;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -80,6 +84,8 @@ pub struct ServeConfig {
     pub stream_clients_max: usize,
     pub drain_timeout_s: f64,
     pub reconnect_max_backoff_s: f64,
+    pub http_listen: String,
+    pub http_clients_max: usize,
 }
 
 impl Default for ServeConfig {
@@ -108,6 +114,8 @@ impl Default for ServeConfig {
             stream_clients_max: 64,
             drain_timeout_s: 5.0,
             reconnect_max_backoff_s: 5.0,
+            http_listen: "127.0.0.1:8080".into(),
+            http_clients_max: 8,
         }
     }
 }
@@ -123,6 +131,8 @@ pub enum ServeError {
     },
     #[error(transparent)]
     Net(#[from] net::NetError),
+    #[error(transparent)]
+    Web(#[from] web::WebError),
     #[error(transparent)]
     Checkpoint(#[from] checkpoint::CheckpointError),
     #[error(transparent)]
@@ -166,6 +176,9 @@ pub struct ServeOptions {
     pub input_id: String,
     /// Record raw buffers (a live camera; replays are not recorded again).
     pub record: bool,
+    /// The live view's port, bound by the caller (the demo, to print its address);
+    /// `None`: bind `[serve] http_listen`.
+    pub http_listener: Option<std::net::TcpListener>,
 }
 
 /// Counters shared by the threads; read by the status publisher.
@@ -535,7 +548,7 @@ impl Recorder {
 /// Runs the daemon on `source` until it ends or `stop` is set.
 pub fn run(
     mut source: Box<dyn FrameSource>,
-    opts: ServeOptions,
+    mut opts: ServeOptions,
     stop: Arc<AtomicBool>,
 ) -> Result<ServeReport, ServeError> {
     let started = Instant::now();
@@ -610,6 +623,15 @@ pub fn run(
     let listeners = net::bind(&endpoints)?;
     if let Some(addr) = listeners.tcp_addr {
         tracing::info!(%addr, "cloud stream listening");
+    }
+    let web_listener = match opts.http_listener.take() {
+        Some(l) => Some(web::from_std(l)?),
+        None => none_if_empty(&cfg.http_listen)
+            .map(|a| web::bind(&a))
+            .transpose()?,
+    };
+    if let Some(l) = &web_listener {
+        tracing::info!("live view at http://{}/", l.addr);
     }
     let hello = serde_json::json!({
         "width": header.width,
@@ -694,6 +716,29 @@ pub fn run(
                     name: "net".into(),
                     source,
                 })?
+        };
+        // The live view.
+        let web_stop = Arc::new(tokio::sync::Notify::new());
+        let web_handle = match web_listener {
+            Some(l) => {
+                let ctx = web::WebContext {
+                    hub: hub.clone(),
+                    status: feed.clone(),
+                    camera: opts.camera.clone(),
+                    max_clients: cfg.http_clients_max,
+                };
+                let (web_stop, drain) =
+                    (web_stop.clone(), seconds(cfg.drain_timeout_s, 0.0, 3600.0));
+                let h = std::thread::Builder::new()
+                    .name("web".into())
+                    .spawn_scoped(s, move || l.serve(ctx, web_stop, drain))
+                    .map_err(|source| ServeError::Thread {
+                        name: "web".into(),
+                        source,
+                    })?;
+                Some(h)
+            }
+            None => None,
         };
 
         // Capture.
@@ -859,8 +904,12 @@ pub fn run(
         });
         notifier.notify("STOPPING=1");
         net_stop.notify_one();
+        web_stop.notify_one();
         status_stop.store(true, Ordering::Relaxed);
         let _ = net_handle.join();
+        if let Some(h) = web_handle {
+            let _ = h.join();
+        }
         report = Some(outcome);
         Ok(())
     });

@@ -250,6 +250,77 @@ impl Hub {
     }
 }
 
+/// What a [`Subscription`] receives next.
+pub enum Delivery {
+    /// One framed cloud-stream message ([`super::stream`]), shared with the hub.
+    Message(Arc<[u8]>),
+    /// The hub dropped this subscriber (it fell behind twice); the reason to pass on.
+    Bye(String),
+}
+
+/// A consumer of the cloud stream inside the daemon (the live web view,
+/// [`super::web`]): a client of the hub like a socket client, with the same bounded
+/// queue, resynchronisation and dropping, for a consumer that forwards the messages
+/// somewhere else. It leaves the hub when dropped.
+pub struct Subscription {
+    hub: Arc<Hub>,
+    client: Arc<Client>,
+}
+
+impl Hub {
+    /// Joins the hub: the subscription first receives `HELLO`, the current epoch and
+    /// `END` if the scan is finished, then everything after, as a socket client does.
+    pub fn subscribe(self: &Arc<Self>) -> Subscription {
+        Subscription {
+            hub: self.clone(),
+            client: self.add_client(),
+        }
+    }
+}
+
+impl Subscription {
+    /// The next message, waiting for one. Cancel-safe: nothing is taken from the queue
+    /// unless this returns.
+    pub async fn next(&self) -> Delivery {
+        loop {
+            let notified = self.client.wake.notified();
+            {
+                let mut q = lock(&self.client.queue);
+                if let Some(reason) = q.bye.take() {
+                    return Delivery::Bye(reason);
+                }
+                if let Some(m) = q.queue.pop_front() {
+                    q.bytes = q.bytes.saturating_sub(m.len());
+                    return Delivery::Message(m);
+                }
+            }
+            notified.await;
+        }
+    }
+
+    /// Resolves once the hub has decided to drop this subscriber: a forward stuck on a
+    /// slow consumer gives up then.
+    pub async fn dropped(&self) {
+        wait_for_bye(&self.client).await;
+    }
+
+    /// `bytes` of stream messages were passed on: the consumer is reading, so a
+    /// resynchronisation of it is not yet a reason to drop it.
+    pub fn delivered(&self, bytes: usize) {
+        self.hub
+            .stats
+            .bytes_sent
+            .fetch_add(bytes as u64, Ordering::Relaxed);
+        lock(&self.client.queue).written_since_resync += bytes as u64;
+    }
+}
+
+impl Drop for Subscription {
+    fn drop(&mut self) {
+        self.hub.remove_client(&self.client);
+    }
+}
+
 /// Resolves once the client is to be dropped.
 async fn wait_for_bye(client: &Client) {
     loop {

@@ -23,6 +23,11 @@ pub(crate) fn camera() -> PathBuf {
 
 /// `crossline serve --replay DUMP` with its sockets and outputs under `dir`.
 pub(crate) fn serve(dir: &Path, input: &Path, rate: &str) -> Command {
+    serve_on(dir, input, rate, "")
+}
+
+/// [`serve`] with the live view on `http` ("" for none).
+pub(crate) fn serve_on(dir: &Path, input: &Path, rate: &str, http: &str) -> Command {
     let mut cmd = crossline();
     cmd.arg("serve")
         .arg("--camera")
@@ -40,7 +45,8 @@ pub(crate) fn serve(dir: &Path, input: &Path, rate: &str) -> Command {
         .arg(dir.join("status.sock"))
         .arg("--stream-unix")
         .arg(dir.join("cloud.sock"))
-        .args(["--stream-tcp", ""]);
+        .args(["--stream-tcp", ""])
+        .args(["--http", http]);
     cmd
 }
 
@@ -95,6 +101,8 @@ fn replay_streams_status_and_clients_end_with_the_final_cloud() {
         .spawn()
         .expect("spawn serve");
     wait_for(&dir.join("cloud.sock"), Duration::from_secs(20));
+    // Bound just after the stream's socket: under load it can be a moment later.
+    wait_for(&dir.join("status.sock"), Duration::from_secs(20));
     let early = follow(dir.join("cloud.sock"));
 
     // Status lines arrive and parse, and `crossline status` reads them too.

@@ -62,7 +62,7 @@ fn stream_clients_over_the_cap_are_closed_and_the_scan_is_still_written() {
         .arg(dump())
         .arg("--out-dir")
         .arg(dir.join("out"))
-        .args(["--stream-tcp", "", "--status-socket", ""])
+        .args(["--stream-tcp", "", "--status-socket", "", "--http", ""])
         .output()
         .expect("second");
     let msg = String::from_utf8_lossy(&second.stderr);

@@ -246,6 +246,8 @@ fn a_replayed_video_keeps_the_container_timestamps_and_its_window() {
                 "",
                 "--stream-tcp",
                 "",
+                "--http",
+                "",
             ]),
     );
     let report = json_file(&dir.join("report.json"));

@@ -129,6 +129,14 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut config = Config::default();
     config.serve.status_socket.clear();
     config.serve.stream_tcp.clear();
+    // The live view: on its usual port, or on any free one when that is taken.
+    let http = std::net::TcpListener::bind(&config.serve.http_listen)
+        .or_else(|_| std::net::TcpListener::bind("127.0.0.1:0"))
+        .context("binding a port for the live view")?;
+    println!(
+        "live view, while the replay runs: http://{}/",
+        http.local_addr().context("the live view's address")?
+    );
     let source = crossline::capture::replay::ReplaySource::open(
         &dump,
         crossline::capture::replay::Rate::Max,
@@ -145,6 +153,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             report_path: Some(live.join("report.json")),
             input_id: format!("demo:{}", dump.display()),
             record: false,
+            http_listener: Some(http),
         },
         stop,
     )?;

@@ -2,6 +2,7 @@
 //! with its clap arguments and its `run`; library errors become `anyhow` errors with
 //! context here and nowhere else.
 
+use std::io::IsTerminal;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
@@ -155,6 +156,9 @@ fn init_logging(verbose: u8) {
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        // Colour codes only for a person at a terminal: journald, files and pipes
+        // would keep them as `\x1b[2m` noise.
+        .with_ansi(std::io::stderr().is_terminal())
         .with_target(false)
         .init();
 }

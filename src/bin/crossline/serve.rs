@@ -23,7 +23,8 @@ use crossline::serve::{self, ServeOptions};
 /// State is checkpointed every few seconds: after a crash or kill -9, the next start
 /// resumes the unfinished scan of the same input.
 ///
-/// Watch it:   crossline status            (or: socat - UNIX-CONNECT:/run/crossline/status.sock)
+/// Watch it:   http://127.0.0.1:8080/      (the live view: cloud, status, coverage map)
+///             crossline status            (or: socat - UNIX-CONNECT:/run/crossline/status.sock)
 /// Fetch it:   crossline tail --out live.ply
 ///
 /// Examples:
@@ -90,6 +91,10 @@ pub struct Args {
     /// Cloud stream Unix socket path ("" disables). Default: [serve] stream_unix.
     #[arg(long, value_name = "PATH")]
     stream_unix: Option<String>,
+    /// Live view (a page in the browser) HTTP address ("" disables; port 0 picks a
+    /// free one). Default: [serve] http_listen.
+    #[arg(long, value_name = "ADDR")]
+    http: Option<String>,
     /// Do not record the camera's raw frames.
     #[arg(long)]
     no_record: bool,
@@ -127,6 +132,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     if let Some(p) = &args.stream_unix {
         sc.stream_unix = p.clone();
+    }
+    if let Some(a) = &args.http {
+        sc.http_listen = a.clone();
     }
     if args.no_record {
         sc.record = false;
@@ -201,6 +209,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         report_path: args.report.clone(),
         input_id,
         record,
+        http_listener: None,
     };
     let report = serve::run(source, opts, stop)?;
     eprintln!(
