@@ -77,7 +77,7 @@ impl Anchors {
             thinned = true;
         }
         Admission {
-            anchor: k % self.stride == 0,
+            anchor: k.is_multiple_of(self.stride),
             thinned,
         }
     }
@@ -88,7 +88,7 @@ impl Anchors {
             .get(frame as usize)
             .copied()
             .flatten()
-            .is_some_and(|k| k % self.stride == 0)
+            .is_some_and(|k| k.is_multiple_of(self.stride))
     }
 }
 

@@ -297,7 +297,8 @@ fn linear_plane(rows: &[(V3, f64)]) -> Option<V3> {
             b += r * (*rho * *w);
         }
         let eig = a.symmetric_eigen().eigenvalues;
-        if !(eig.min() > MIN_CONDITION * eig.max()) {
+        let (lo, hi) = (eig.min(), eig.max());
+        if lo.is_nan() || lo <= MIN_CONDITION * hi {
             return None;
         }
         let sol = a.cholesky()?.solve(&b);

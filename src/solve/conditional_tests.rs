@@ -88,7 +88,7 @@ fn poses_fitted_against_anchors_know_how_well_they_are_known() {
         .collect();
     let ratio = median(finite.iter().map(|r| r.1 / r.2).collect());
     assert!(
-        ratio >= 1.0 && ratio < 3.0,
+        (1.0..3.0).contains(&ratio),
         "fitted over joint deviation: {ratio}"
     );
     let z = median(finite.iter().map(|r| r.0 / r.1).collect());
