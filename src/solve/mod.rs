@@ -333,49 +333,6 @@ pub(crate) fn median(mut x: Vec<f64>) -> Option<f64> {
     Some(*m)
 }
 
-/// First robust weights from an earlier solution: Cauchy weights of its Sampson
-/// residuals at scale `outlier_mad_k · σ` (as [`seed::consensus_weights`] gives),
-/// 1 where a curve was not solved. `None` when the earlier solution saw too little of
-/// the problem (under half the active crossings).
-fn warm_weights(
-    problem: &Problem,
-    active: &[bool],
-    params: &SolveParams,
-    warm: &WarmStart,
-) -> Option<Vec<f64>> {
-    let resid: Vec<Option<f64>> = problem
-        .crossings
-        .iter()
-        .zip(active)
-        .map(|(c, &on)| {
-            if !on {
-                return None;
-            }
-            let a = warm.planes.get(c.a as usize).copied().flatten()?;
-            let b = warm.planes.get(c.b as usize).copied().flatten()?;
-            nullspace::sampson(&a, &b, c.u).map(|(e, _)| e.abs())
-        })
-        .collect();
-    let known: Vec<f64> = resid.iter().flatten().copied().collect();
-    let active_count = active.iter().filter(|a| **a).count();
-    if known.len() * 2 < active_count {
-        return None;
-    }
-    let sigma = (MAD_TO_SIGMA * median(known)?).max(NOISE_FLOOR);
-    let thr = params.outlier_mad_k * sigma;
-    Some(
-        resid
-            .iter()
-            .map(|e| {
-                e.map_or(1.0, |e| {
-                    let r = e / thr;
-                    1.0 / (1.0 + r * r)
-                })
-            })
-            .collect(),
-    )
-}
-
 /// Stages 1–3: subset, coplanarity null space, robust rounds.
 ///
 /// Inner loop (iteratively reweighted least squares): solve the subset over every
@@ -391,28 +348,6 @@ pub fn robust_global(
     problem: &Problem,
     active: &[bool],
     params: &SolveParams,
-) -> Result<GlobalCoplanarity, SolveError> {
-    robust_global_warm(problem, active, params, None)
-}
-
-/// What an earlier solve of the same (grown) problem found, to start from: curve and
-/// crossing indices are the earlier problem's, which the grown one keeps.
-#[derive(Clone, Copy, Debug)]
-pub struct WarmStart<'a> {
-    /// The earlier planes in the given coordinates (`(v.x/λ, v.y/λ, v.z)` of a
-    /// [`Solution`]'s planes).
-    pub planes: &'a [Option<Vector3<f64>>],
-}
-
-/// [`robust_global`], started from an earlier solution when one is given: the first
-/// robust weights come from the earlier planes' residuals (where both curves of a
-/// crossing were solved), in the form the consensus seed gives them, instead of a
-/// fresh consensus search.
-pub fn robust_global_warm(
-    problem: &Problem,
-    active: &[bool],
-    params: &SolveParams,
-    warm: Option<&WarmStart>,
 ) -> Result<GlobalCoplanarity, SolveError> {
     let n_curves = problem.num_curves;
     let cr = problem.crossings;
@@ -432,13 +367,9 @@ pub fn robust_global_warm(
         },
     );
     let mut prev: Vec<Option<Vector3<f64>>> = vec![None; n_curves];
-    let warm_weights = warm.and_then(|w| warm_weights(problem, active, params, w));
-    let mut robust_weight = match warm_weights {
-        Some(w) => w,
-        None => match seed::consensus_weights(problem, active, &subset, params) {
-            Some((w, _)) => w,
-            None => vec![1.0; cr.len()],
-        },
+    let mut robust_weight = match seed::consensus_weights(problem, active, &subset, params) {
+        Some((w, _)) => w,
+        None => vec![1.0; cr.len()],
     };
     let k_out = params.outlier_mad_k;
     for _outer in 0..30 {
@@ -867,16 +798,6 @@ fn crossing_weight(c: &Crossing) -> f64 {
 
 /// Solves the plane of every curve it can (see the module docs for the stages).
 pub fn solve(problem: &Problem, params: &SolveParams) -> Result<Solution, SolveError> {
-    solve_warm(problem, params, None)
-}
-
-/// [`solve`], started from an earlier solution of the same, grown problem (the live
-/// daemon's re-estimates): see [`robust_global_warm`].
-pub fn solve_warm(
-    problem: &Problem,
-    params: &SolveParams,
-    warm: Option<&WarmStart>,
-) -> Result<Solution, SolveError> {
     if !(problem.focal_px.is_finite() && problem.focal_px > 0.0) {
         return Err(SolveError::InvalidProblem(format!(
             "focal length {} px is not positive",
@@ -913,7 +834,7 @@ pub fn solve_warm(
         .collect();
     let shallow_crossings = active.iter().filter(|&&a| !a).count();
 
-    let global = robust_global_warm(problem, &active, params, warm)?;
+    let global = robust_global(problem, &active, params)?;
     let subset = &global.subset;
     let crosses = crosses_among(&subset.curves, &subset.local, problem.partner);
     let (orth, _bad_crosses) = ortho::solve_orthogonality(

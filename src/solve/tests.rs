@@ -345,55 +345,6 @@ fn noise_and_wrong_crossings_together_on_an_object() {
     );
 }
 
-#[test]
-fn a_warm_start_from_an_earlier_solution_finds_the_same_planes() {
-    let (s, mut cr) = scan(50, 36);
-    let sigma = 0.2 / 1000.0;
-    let mut rng = Rng::new(9);
-    for c in &mut cr {
-        c.u[0] += sigma * rng.normal();
-        c.u[1] += sigma * rng.normal();
-    }
-    // A few wrong crossings, as spurious curves give.
-    for c in cr.iter_mut().step_by(37) {
-        c.u[0] += 0.02;
-    }
-    let problem = problem(&s, &cr);
-    let params = SolveParams {
-        max_global_planes: 60,
-        ..SolveParams::default()
-    };
-    let cold = solve(&problem, &params).expect("cold solve");
-    let given: Vec<Option<Vector3<f64>>> = cold
-        .planes
-        .iter()
-        .map(|p| p.map(|v| Vector3::new(v.x / cold.focal_scale, v.y / cold.focal_scale, v.z)))
-        .collect();
-    let warm =
-        solve_warm(&problem, &params, Some(&WarmStart { planes: &given })).expect("warm solve");
-    // Median relative plane error (the worst single plane depends on which curves the
-    // extension meets first, warm or cold).
-    let median_error = |sol: &Solution| {
-        let (k, _, solved) = plane_error(sol, &s.planes);
-        let mut e: Vec<f64> = sol
-            .planes
-            .iter()
-            .zip(&s.planes)
-            .filter_map(|(p, t)| p.map(|p| (p - t * k).norm() / (t * k).norm()))
-            .collect();
-        e.sort_by(f64::total_cmp);
-        (e[e.len() / 2], solved)
-    };
-    let (cold_median, cold_solved) = median_error(&cold);
-    let (warm_median, warm_solved) = median_error(&warm);
-    assert!(warm_solved >= cold_solved, "{warm_solved} < {cold_solved}");
-    assert!(
-        warm_median <= 1.5 * cold_median,
-        "warm median plane error {warm_median} vs cold {cold_median}"
-    );
-    assert!(warm_median < 0.01, "{warm_median}");
-}
-
 /// Stage 7 on exact planes all shifted off their orthogonality by one `w`, with some
 /// planes unsolved: the shift is undone and the planes come back up to scale.
 #[test]
@@ -568,8 +519,8 @@ fn the_focal_scale_deviation_follows_the_noise() {
         estimates.push(sol.focal_scale);
         reported.push(sol.focal_scale_std.expect("a deviation"));
         // The fit's own part, for the message.
-        let global = robust_global_warm(&problem(&s, &cr), &vec![true; cr.len()], &params, None)
-            .expect("global");
+        let global =
+            robust_global(&problem(&s, &cr), &vec![true; cr.len()], &params).expect("global");
         let crosses = crosses_among(&global.subset.curves, &global.subset.local, &s.partner);
         let (orth, _) =
             ortho::solve_orthogonality(&global.null_space.v0, &crosses, true, 4.0, NOISE_FLOOR)
