@@ -30,7 +30,7 @@ use faer::Mat;
 use nalgebra::{SMatrix, SVector, Vector3};
 use rayon::prelude::*;
 
-use super::estimate::{Estimate, EstimateParams, PoseMarginal, Spreads};
+use super::estimate::{Estimate, EstimateParams, PoseMarginal, Spreads, MIN_REDUNDANCY, RIDGE};
 use super::evidence::{Evidence, Observation, Ray};
 use super::pose::{CrossPose, POSE_DOF};
 use super::terms::{self, Loss};
@@ -39,16 +39,11 @@ type V3 = Vector3<f64>;
 type M6 = SMatrix<f64, 6, 6>;
 type V6 = SVector<f64, 6>;
 
-/// Ridge on the fit's diagonal, relative to its mean (as the joint estimator's).
-const RIDGE: f64 = 1e-10;
 /// Rounds of reweighting of the linear start's plane fits.
 const LINEAR_ROUNDS: usize = 5;
 /// Least ratio of the smallest to the largest eigenvalue of a linear plane fit's normal
 /// matrix: below it the rays span too little (nearly one image line) to fix the plane.
 const MIN_CONDITION: f64 = 1e-12;
-/// A residual whose redundancy `1 − w h` is below this is absorbed by its fit and says
-/// nothing of its spread (as in the joint estimator).
-const MIN_REDUNDANCY: f64 = 0.05;
 /// The fits are repeated at the spreads their own residuals show when those exceed the
 /// anchors' by more than this share.
 const SPREAD_SETTLED: f64 = 0.05;
@@ -426,10 +421,12 @@ fn fit_ties(
     let mut blocks: Vec<(usize, M6)> = Vec::new();
     let mut b_focal = V6::zeros();
     let mut counted = 0;
-    for tie in ties {
-        let Some(t) = term(&best.pose, tie, anchors, ev.focal_px, lambda) else {
-            continue;
-        };
+    // Each tie's term at the fit, once for both passes below.
+    let at_fit: Vec<(&Tie, terms::CrossingTerm)> = ties
+        .iter()
+        .filter_map(|tie| Some((tie, term(&best.pose, tie, anchors, ev.focal_px, lambda)?)))
+        .collect();
+    for (tie, t) in &at_fit {
         let x = t.e / tie.sigma;
         let rw = loss.weight(x);
         counted += usize::from(rw >= 0.5);
@@ -450,10 +447,7 @@ fn fit_ties(
     }
     let h_inv = with_ridge(&h).try_inverse()?;
     let mut standardised = Vec::new();
-    for tie in ties {
-        let Some(t) = term(&best.pose, tie, anchors, ev.focal_px, lambda) else {
-            continue;
-        };
+    for (tie, t) in &at_fit {
         let j = V6::from_column_slice(&t.ja);
         let rw = loss.weight(t.e / tie.sigma);
         let r = 1.0 - rw * (j.transpose() * h_inv * j)[(0, 0)] / (tie.sigma * tie.sigma);

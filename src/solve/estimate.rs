@@ -210,7 +210,7 @@ struct Layout<'a> {
 const SPREAD_FLOOR: f64 = 1e-6;
 /// A residual whose redundancy `1 − w h` is below this is absorbed by the estimate and
 /// says nothing of its spread.
-const MIN_REDUNDANCY: f64 = 0.05;
+pub(super) const MIN_REDUNDANCY: f64 = 0.05;
 /// Relative change of the spreads below which the rounds stop.
 const SPREAD_SETTLED: f64 = 0.05;
 /// The minimisation ends when what is left to gain is under this, in units of the
@@ -226,7 +226,7 @@ const GAUGE_MIN_RAY_PLANE_SIN: f64 = 0.1;
 const SCATTER_DEVIATIONS: f64 = 3.0;
 /// Ridge on the diagonal, relative to its mean: directions no term sees (the turn of a
 /// laser never observed) get a finite, huge variance instead of a singular matrix.
-const RIDGE: f64 = 1e-10;
+pub(super) const RIDGE: f64 = 1e-10;
 
 impl<'a> Layout<'a> {
     fn new(evidence: &'a Evidence, params: &'a EstimateParams) -> Self {
