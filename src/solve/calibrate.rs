@@ -88,6 +88,14 @@ const MAX_CANDIDATES: usize = 3;
 /// not the start, judges.
 const CANDIDATE_COST_RATIO: f64 = 4.0;
 
+/// Linear starts made at most, each in the rays of the focal scale the one before found
+/// (see [`linear_start_at`]).
+const FOCAL_START_ROUNDS: usize = 6;
+
+/// The linear starts stop when one finds the focal scale it was made at to this
+/// relative change.
+const FOCAL_START_TOLERANCE: f64 = 2e-3;
+
 /// The scan's planes and how well each is known.
 #[derive(Clone, Debug)]
 pub struct Calibration {
@@ -142,10 +150,52 @@ fn as_crossing(c: &Observation) -> Crossing {
 /// it left unsolved fitted from all its crossings, faint ones too, with the solved
 /// planes (the far end of a sweep under water has only faint curves). Planes on the
 /// rays at the start's focal scale (`v · (x/λ, y/λ, 1)`, the rays without distortion).
-fn linear_start(
+pub(super) fn linear_start(
     evidence: &Evidence,
     params: &SolveParams,
 ) -> Result<(super::Solution, Vec<Option<V3>>), SolveError> {
+    if !params.estimate_focal {
+        return linear_start_at(evidence, params, 1.0);
+    }
+    let mut at = 1.0;
+    let mut best: Option<(super::Solution, Vec<Option<V3>>)> = None;
+    for round in 0..FOCAL_START_ROUNDS {
+        let (start, planes) = linear_start_at(evidence, params, at)?;
+        let relative = start.focal_scale / at;
+        tracing::debug!(
+            round,
+            at,
+            found = start.focal_scale,
+            "linear start in the rays of a focal scale"
+        );
+        best = Some((start, planes));
+        if (relative - 1.0).abs() < FOCAL_START_TOLERANCE || !relative.is_finite() {
+            break;
+        }
+        at *= relative;
+    }
+    best.ok_or(SolveError::Degenerate("no linear start"))
+}
+
+/// [`linear_start`] on the rays of the focal scale `at` (`δ⁻¹(δ(u)/at)`, the distortion
+/// applied at the radius that focal length gives): the coplanarity of crossings is
+/// blind to the focal length only without distortion, so a start made in the camera
+/// file's rays when the focal length is far off sees bent crossings. The solution's
+/// focal scale is made absolute (`at` times the one found in those rays).
+fn linear_start_at(
+    evidence: &Evidence,
+    params: &SolveParams,
+    at: f64,
+) -> Result<(super::Solution, Vec<Option<V3>>), SolveError> {
+    let as_crossing = |c: &Observation| {
+        let mut x = as_crossing(c);
+        if at != 1.0 {
+            if let Some(ray) = evidence.rays.ray(c.u, at) {
+                x.u = [ray.r.x, ray.r.y];
+            }
+        }
+        x
+    };
     let strong: Vec<Crossing> = evidence
         .crossings
         .iter()
@@ -167,7 +217,7 @@ fn linear_start(
     let start = super::solve(&problem, params)?;
     let mut given = start.given_planes();
     if let Some(ctx) = start.fit_context {
-        let all: Vec<Crossing> = evidence.crossings.iter().map(as_crossing).collect();
+        let all: Vec<Crossing> = evidence.crossings.iter().map(&as_crossing).collect();
         let active: Vec<bool> = all
             .iter()
             .map(|c| c.sin_angle >= ctx.min_sin_angle)
@@ -190,6 +240,10 @@ fn linear_start(
         .iter()
         .map(|p| p.map(|v| V3::new(v.x * lambda, v.y * lambda, v.z)))
         .collect();
+    let start = super::Solution {
+        focal_scale: at * lambda,
+        ..start
+    };
     Ok((start, planes))
 }
 
@@ -256,59 +310,7 @@ pub fn calibrate_from(
         estimate_focal: params.estimate_focal,
         ..EstimateParams::default()
     };
-    // The global search over the shift: every minimum of the orthogonality cost of the
-    // start's crosses, refined jointly; the start's own first, with the spreads measured,
-    // the others under its spreads, and fully only where they compete with it.
-    let mut estimates: Vec<Estimate> = Vec::new();
-    // The first estimate's cost under its own spreads, once it exists.
-    let mut first_cost = None;
-    for w in shift_candidates(sub, &planes) {
-        let shifted: Vec<Option<V3>> = planes.iter().map(|p| p.map(|v| v + w)).collect();
-        let Some((poses, _)) = init::poses_from_planes(sub, &shifted) else {
-            continue;
-        };
-        let (spreads, params_here) = match estimates.first() {
-            None => (init::start_spreads(sub, &poses, sigma_px), eparams.clone()),
-            Some(first) => (
-                first.spreads,
-                EstimateParams {
-                    variance_rounds: 1,
-                    ..eparams.clone()
-                },
-            ),
-        };
-        let start = Start {
-            poses,
-            focal_scale: start.focal_scale,
-            spreads,
-        };
-        match estimate::estimate(sub, &start, &params_here) {
-            Ok(mut est) => {
-                normalise_scale(sub, &mut est);
-                if let (Some(first), Some(base)) = (estimates.first(), first_cost) {
-                    let delta = estimate::cost_at(sub, &est, &first.spreads, &eparams) - base;
-                    if delta < AMBIGUOUS_CHI2 {
-                        // It competes: measure its own spreads too.
-                        let again = Start {
-                            poses: est.poses.clone(),
-                            focal_scale: est.focal_scale,
-                            spreads: est.spreads,
-                        };
-                        if let Ok(mut full) = estimate::estimate(sub, &again, &eparams) {
-                            normalise_scale(sub, &mut full);
-                            est = full;
-                        }
-                    }
-                }
-                if first_cost.is_none() {
-                    first_cost = Some(estimate::cost_at(sub, &est, &est.spreads, &eparams));
-                }
-                estimates.push(est);
-            }
-            Err(e) if estimates.is_empty() => return Err(e),
-            Err(e) => tracing::debug!("an alternative shift did not refine: {e}"),
-        }
-    }
+    let estimates = refine_starts(sub, &planes, start.focal_scale, sigma_px, &eparams)?;
     let (est, alternatives) = best_of(sub, estimates, &eparams)
         .ok_or(SolveError::Degenerate("no start for the joint estimate"))?;
     let focal_scale_std = params
@@ -344,6 +346,73 @@ pub fn calibrate_from(
         verdicts,
         summary,
     })
+}
+
+/// The global search over the shift: every minimum of the orthogonality cost of the
+/// start's crosses (`planes` at focal scale `lambda`), refined jointly; the start's own
+/// first, with the spreads measured, the others under its spreads, and fully only where
+/// they compete with it.
+fn refine_starts(
+    sub: &Evidence,
+    planes: &[Option<V3>],
+    lambda: f64,
+    sigma_px: f64,
+    eparams: &EstimateParams,
+) -> Result<Vec<Estimate>, SolveError> {
+    let mut estimates: Vec<Estimate> = Vec::new();
+    // The first estimate's cost under its own spreads, once it exists.
+    let mut first_cost = None;
+    for w in shift_candidates(sub, planes) {
+        let shifted: Vec<Option<V3>> = planes.iter().map(|p| p.map(|v| v + w)).collect();
+        let Some((poses, _)) = init::poses_from_planes(sub, &shifted) else {
+            continue;
+        };
+        let (spreads, params_here) = match estimates.first() {
+            None => (init::start_spreads(sub, &poses, sigma_px), eparams.clone()),
+            Some(first) => (
+                first.spreads,
+                EstimateParams {
+                    variance_rounds: 1,
+                    ..eparams.clone()
+                },
+            ),
+        };
+        let start = Start {
+            poses,
+            focal_scale: lambda,
+            spreads,
+        };
+        match estimate::estimate(sub, &start, &params_here) {
+            Ok(mut est) => {
+                normalise_scale(sub, &mut est);
+                if let (Some(first), Some(base)) = (estimates.first(), first_cost) {
+                    let delta = estimate::cost_at(sub, &est, &first.spreads, eparams) - base;
+                    tracing::debug!(lambda, found = est.focal_scale, delta, "a further start");
+                    if delta < AMBIGUOUS_CHI2 {
+                        // It competes: measure its own spreads too.
+                        let again = Start {
+                            poses: est.poses.clone(),
+                            focal_scale: est.focal_scale,
+                            spreads: est.spreads,
+                        };
+                        if let Ok(mut full) = estimate::estimate(sub, &again, eparams) {
+                            normalise_scale(sub, &mut full);
+                            est = full;
+                        }
+                    }
+                }
+                if first_cost.is_none() {
+                    let cost = estimate::cost_at(sub, &est, &est.spreads, eparams);
+                    tracing::debug!(lambda, found = est.focal_scale, cost, "the first start");
+                    first_cost = Some(cost);
+                }
+                estimates.push(est);
+            }
+            Err(e) if estimates.is_empty() => return Err(e),
+            Err(e) => tracing::debug!("an alternative start did not refine: {e}"),
+        }
+    }
+    Ok(estimates)
 }
 
 /// The shifts `w` to refine: every minimum of the orthogonality cost of the crosses whose

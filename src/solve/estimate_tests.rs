@@ -459,3 +459,63 @@ fn two_w_solutions_are_detected() {
     // One of the two is the truth, to rounding; which one, the evidence cannot say.
     let _ = best;
 }
+
+/// A camera file whose focal length is 30 % short, on a lens that bends (k1 = 0.084,
+/// k2 = −0.022, as a random bench camera): the file's undistortion works at the wrong
+/// radius, so the crossings in its coordinates are not a focal scale away from the
+/// truth's but bent too. The linear start, re-made in the rays of the focal scale it
+/// finds, and the joint estimate must still find the factor and the planes.
+#[test]
+fn the_focal_scale_is_found_from_a_camera_file_30_percent_off() {
+    let scan = path_scan(&PathSpec::default());
+    let mut ev = evidence_of(&scan, 0.0, 1, |_, _| true);
+    let truth_u: Vec<[f64; 2]> = ev.crossings.iter().map(|c| c.u).collect();
+    let lens = crate::camera::Distortion {
+        k1: 0.084,
+        k2: -0.022,
+        ..Default::default()
+    };
+    let lambda = 1.0 / 0.7;
+    // The pixel's distorted normalised point is δ(x) in the true focal length, λ δ(x) in
+    // the file's; the file's undistorted coordinates are δ⁻¹ of that.
+    for c in &mut ev.crossings {
+        let (dx, dy) = lens.distort(c.u[0], c.u[1]);
+        let (x, y) = lens
+            .undistort(dx * lambda, dy * lambda)
+            .expect("invertible");
+        c.u = [x, y];
+    }
+    ev.rays = RayModel::new(lens);
+    let params = super::SolveParams {
+        estimate_focal: true,
+        ..super::SolveParams::default()
+    };
+    // The start alone: made once, in the file's rays, it is 3 % short here.
+    let (start, _) = super::calibrate::linear_start(&ev, &params).expect("a linear start");
+    assert!(
+        (start.focal_scale / lambda - 1.0).abs() < 1e-3,
+        "linear start's focal scale {} for {lambda}",
+        start.focal_scale
+    );
+    let cal = super::calibrate::calibrate(&ev, &params).expect("calibrates");
+    let found = cal.estimate.focal_scale;
+    assert!(
+        (found / lambda - 1.0).abs() < 1e-4,
+        "focal scale {found} for {lambda}"
+    );
+    // Every plane determined and right, after the one global scale.
+    let truth = scan.flat_planes();
+    let mut ratios = Vec::new();
+    for (c, u) in ev.crossings.iter().zip(&truth_u) {
+        let plane = cal.plane(c.a as usize).expect("determined");
+        let ray = cal.ray(c.u).expect("a ray");
+        ratios.push(plane.dot(&ray.r) / truth[c.a as usize].dot(&V3::new(u[0], u[1], 1.0)));
+    }
+    ratios.sort_by(f64::total_cmp);
+    let mid = ratios[ratios.len() / 2];
+    let worst = ratios
+        .iter()
+        .map(|r| (r / mid - 1.0).abs())
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-4, "worst relative depth error {worst:e}");
+}
