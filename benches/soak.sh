@@ -5,6 +5,8 @@
 # the script prints the first, the highest and the last sample and their spread.
 #
 #   benches/soak.sh [HOURS] [DUMP]     (default: fixtures/sim-bricks/frames.dump)
+#   CROSSLINE=/tmp/bin/crossline benches/soak.sh 2   (a copy of the binary: rebuilding
+#                                       target/release during the soak then changes nothing)
 #
 # The replay loop is a v4l2loopback-free stand-in for a long dive: `serve --replay`
 # has no loop, so each pass is a new serve run on the same out_dir (a fresh scan),
@@ -18,8 +20,8 @@ dump=${2:-fixtures/sim-bricks/frames.dump}
 sample_s=${SAMPLE_S:-1}
 out=target/bench-soak
 mkdir -p "$out"
-cargo build --release
-bin=target/release/crossline
+bin=${CROSSLINE:-target/release/crossline}
+[[ -n ${CROSSLINE:-} ]] || cargo build --release
 camera=$(dirname "$dump")/camera.yml
 end=$(($(date +%s) + $(printf '%.0f' "$(echo "$hours * 3600" | bc)")))
 printf 'elapsed_s\tpass\tpid\trss_kib\tfds\n' >"$out/rss.tsv"
