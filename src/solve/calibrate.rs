@@ -92,6 +92,10 @@ const CANDIDATE_COST_RATIO: f64 = 4.0;
 /// (see [`linear_start_at`]).
 const FOCAL_START_ROUNDS: usize = 6;
 
+/// Times the linear start is made again at the joint estimate's focal scale at most
+/// (see [`restart_at_found_focal`]).
+const FOCAL_RESTARTS: usize = 2;
+
 /// The linear starts stop when one finds the focal scale it was made at to this
 /// relative change.
 const FOCAL_START_TOLERANCE: f64 = 2e-3;
@@ -150,6 +154,8 @@ fn as_crossing(c: &Observation) -> Crossing {
 /// it left unsolved fitted from all its crossings, faint ones too, with the solved
 /// planes (the far end of a sweep under water has only faint curves). Planes on the
 /// rays at the start's focal scale (`v · (x/λ, y/λ, 1)`, the rays without distortion).
+/// With the focal scale estimated, the start is made again in the rays of the scale it
+/// found ([`linear_start_at`]) until that scale stops moving.
 pub(super) fn linear_start(
     evidence: &Evidence,
     params: &SolveParams,
@@ -160,7 +166,19 @@ pub(super) fn linear_start(
     let mut at = 1.0;
     let mut best: Option<(super::Solution, Vec<Option<V3>>)> = None;
     for round in 0..FOCAL_START_ROUNDS {
-        let (start, planes) = linear_start_at(evidence, params, at)?;
+        let (start, planes) = match linear_start_at(evidence, params, at) {
+            Ok(found) => found,
+            // The last start made stands: in other rays other crossings can fall short.
+            Err(e) if best.is_some() => {
+                tracing::debug!(
+                    round,
+                    at,
+                    "no linear start in the rays of a focal scale: {e}"
+                );
+                break;
+            }
+            Err(e) => return Err(e),
+        };
         let relative = start.focal_scale / at;
         tracing::debug!(
             round,
@@ -310,7 +328,18 @@ pub fn calibrate_from(
         estimate_focal: params.estimate_focal,
         ..EstimateParams::default()
     };
-    let estimates = refine_starts(sub, &planes, start.focal_scale, sigma_px, &eparams)?;
+    let mut estimates = refine_starts(sub, &planes, start.focal_scale, sigma_px, &eparams)?;
+    if params.estimate_focal && given.is_none() {
+        let made_at = start.focal_scale;
+        restart_at_found_focal(
+            evidence,
+            &split,
+            params,
+            (made_at, sigma_px),
+            &eparams,
+            &mut estimates,
+        );
+    }
     let (est, alternatives) = best_of(sub, estimates, &eparams)
         .ok_or(SolveError::Degenerate("no start for the joint estimate"))?;
     let focal_scale_std = params
@@ -346,6 +375,54 @@ pub fn calibrate_from(
         verdicts,
         summary,
     })
+}
+
+/// With the focal scale estimated: while the joint estimate of least cost moves the focal
+/// scale away from the one its start was made at (`at.0`), the linear start is made again
+/// in the rays of the joint estimate's scale, with that scale held (the joint estimate's
+/// is the better determined: the orthogonality of the start's crosses alone can miss it
+/// by 10 %), and refined; the cost then chooses among all ([`best_of`]).
+fn restart_at_found_focal(
+    evidence: &Evidence,
+    split: &AnchorSplit,
+    params: &SolveParams,
+    (mut made_at, sigma_px): (f64, f64),
+    eparams: &EstimateParams,
+    estimates: &mut Vec<Estimate>,
+) {
+    let held = SolveParams {
+        estimate_focal: false,
+        ..params.clone()
+    };
+    for _ in 0..FOCAL_RESTARTS {
+        let Some(k) = least_cost(&split.evidence, estimates, eparams) else {
+            return;
+        };
+        let found = estimates[k].focal_scale;
+        if (found / made_at - 1.0).abs() < FOCAL_START_TOLERANCE {
+            return;
+        }
+        tracing::debug!(
+            made_at,
+            found,
+            "the joint estimate moved the focal scale: starting again there"
+        );
+        let planes = match linear_start_at(evidence, &held, found) {
+            Ok((_, planes)) => split.planes_of(&planes),
+            Err(e) => {
+                tracing::debug!("no linear start at the focal scale found: {e}");
+                return;
+            }
+        };
+        made_at = found;
+        match refine_starts(&split.evidence, &planes, found, sigma_px, eparams) {
+            Ok(more) => estimates.extend(more),
+            Err(e) => {
+                tracing::debug!("the start at the focal scale found did not refine: {e}");
+                return;
+            }
+        }
+    }
 }
 
 /// The global search over the shift: every minimum of the orthogonality cost of the
@@ -457,12 +534,7 @@ pub(crate) fn best_of(
     mut estimates: Vec<Estimate>,
     params: &EstimateParams,
 ) -> Option<(Estimate, Vec<Alternative>)> {
-    let first_spreads = estimates.first()?.spreads;
-    let costs: Vec<f64> = estimates
-        .iter()
-        .map(|e| estimate::cost_at(evidence, e, &first_spreads, params))
-        .collect();
-    let k = (0..estimates.len()).min_by(|&a, &b| costs[a].total_cmp(&costs[b]))?;
+    let k = least_cost(evidence, &estimates, params)?;
     let best = estimates.swap_remove(k);
     let base = estimate::cost_at(evidence, &best, &best.spreads, params);
     // The same solution, found twice: its depths within the estimate's own deviation.
@@ -481,6 +553,20 @@ pub(crate) fn best_of(
         .collect();
     alternatives.sort_by(|a, b| a.delta_chi2.total_cmp(&b.delta_chi2));
     Some((best, alternatives))
+}
+
+/// The index of the estimate of least cost, all under the spreads of the first.
+fn least_cost(
+    evidence: &Evidence,
+    estimates: &[Estimate],
+    params: &EstimateParams,
+) -> Option<usize> {
+    let first_spreads = estimates.first()?.spreads;
+    let costs: Vec<f64> = estimates
+        .iter()
+        .map(|e| estimate::cost_at(evidence, e, &first_spreads, params))
+        .collect();
+    (0..estimates.len()).min_by(|&a, &b| costs[a].total_cmp(&costs[b]))
 }
 
 /// The median relative depth deviation that `est` gives the crossings (each on its first
