@@ -366,6 +366,142 @@ mod tests {
         );
     }
 
+    /// Feeds `frames` to `solver` at about 30 fps and returns each epoch's points (an
+    /// epoch carries its whole cloud; between epochs nothing is sent).
+    fn live_epochs(solver: &mut Incremental, frames: Vec<Vec<Curve>>) -> Vec<Vec<Point>> {
+        let mut epochs: Vec<Vec<Point>> = Vec::new();
+        for curves in frames {
+            let out = solver.add_frame(curves, 0);
+            if out.epoch.is_some() {
+                epochs.push(Vec::new());
+            } else {
+                assert!(out.points.is_empty(), "points between epochs");
+            }
+            if let Some(e) = epochs.last_mut() {
+                e.extend(out.points);
+            }
+            // Give the background solve time, as frames at 30 fps would.
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        epochs
+    }
+
+    /// Of one epoch's points (one global scale, fitted as the median), how many lie more
+    /// than `tolerance` (relative depth) off the surface, and how many lie on planes (one
+    /// laser of one frame) whose median point does.
+    fn points_off(
+        scene: &crate::solve::synthetic::Scene,
+        points: &[Point],
+        tolerance: f64,
+    ) -> (usize, usize) {
+        let ratio = |p: &Point| {
+            let [x, y, z] = p.xyz.map(f64::from);
+            scene.inverse_depth(x / z, y / z) * z
+        };
+        let mut all: Vec<f64> = points.iter().map(ratio).collect();
+        all.sort_by(f64::total_cmp);
+        let Some(&s0) = all.get(all.len() / 2) else {
+            return (0, 0);
+        };
+        let off = all
+            .iter()
+            .filter(|s| (*s / s0 - 1.0).abs() > tolerance)
+            .count();
+        let mut planes: std::collections::HashMap<(u32, u8), Vec<f64>> = Default::default();
+        for p in points {
+            planes
+                .entry((p.frame, p.laser))
+                .or_default()
+                .push((ratio(p) / s0 - 1.0).abs());
+        }
+        let on_wrong = planes
+            .values_mut()
+            .filter_map(|e| {
+                e.sort_by(f64::total_cmp);
+                (e[e.len() / 2] > tolerance).then_some(e.len())
+            })
+            .sum();
+        (off, on_wrong)
+    }
+
+    /// More evidence never makes an epoch worse: no epoch has more points on planes
+    /// that are off by more than three of the depth rule's deviations (the rule keeps a
+    /// point only where its plane fixes its depth to `max_depth_sigma`) than the epoch
+    /// before it, and the final cloud has none.
+    ///
+    /// Fails today (issue 18; the defect is the estimator's, issue 17): at 0.05 px of
+    /// curve noise the epochs have 0, 0, 5, 8, 13, 28, 41, 67 such points and the final
+    /// cloud 89 of 170,781. They lie on runs of consecutive frames of one laser (frames
+    /// 18-21 of laser 1: 0.2-1.5 % off, claiming 0.03-0.21 %), planes their crossings
+    /// leave free to turn and the motion term pins, with a deviation 4-7 times too small;
+    /// with every pose joint (`max_anchor_poses` 300) the final cloud has 130, with 20
+    /// anchors (the rest fitted against them) none.
+    #[test]
+    #[ignore = "fails: the deviation of motion-pinned planes is too small (issue 17/18)"]
+    fn epochs_are_monotone_in_evidence() {
+        let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+        let mut config = Config::default();
+        config.solve.max_anchor_poses = 40;
+        let (scan, frames) = path_frames(&camera, &config);
+        // Noise of 0.3 px along every curve, so that the planes the first epochs see
+        // crossed a few times are poorly fixed, and the depth rule has work to do.
+        let mut rng = crate::solve::synthetic::Rng::new(5);
+        let sigma = 0.05 / camera.fx;
+        let frames: Vec<Vec<Curve>> = frames
+            .into_iter()
+            .map(|curves| {
+                curves
+                    .into_iter()
+                    .map(|mut c| {
+                        for p in &mut c.points {
+                            p[0] += sigma * rng.normal();
+                            p[1] += sigma * rng.normal();
+                        }
+                        c.polyline = c.points.clone();
+                        c
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut solver = Incremental::new(
+            camera,
+            config.clone(),
+            IncrementalParams {
+                min_planes_first_solve: 30,
+                solve_growth: 1.25,
+            },
+            ScaleMode::Factor { factor: 1.0 },
+        );
+        let bound = 3.0 * config.triangulate.max_depth_sigma;
+        let epochs = live_epochs(&mut solver, frames);
+        let failing: Vec<usize> = epochs
+            .iter()
+            .map(|points| points_off(&scan.scene, points, bound).1)
+            .collect();
+        assert!(epochs.len() >= 3, "{} epochs", epochs.len());
+        for (e, pair) in failing.windows(2).enumerate() {
+            assert!(
+                pair[1] <= pair[0],
+                "epoch {} has {} points on planes over {bound}, the one before {} (all: {failing:?})",
+                e + 1,
+                pair[1],
+                pair[0]
+            );
+        }
+        let last = solver.finish().expect("final solve");
+        let cloud = &last.cloud;
+        let (frames_of, lasers_of) = (cloud.frames.as_ref(), cloud.lasers.as_ref());
+        let final_points: Vec<Point> = (0..cloud.len())
+            .map(|i| Point {
+                xyz: cloud.points[i],
+                rgb: [0; 3],
+                laser: lasers_of.expect("lasers")[i],
+                frame: frames_of.expect("frames")[i],
+            })
+            .collect();
+        assert_eq!(points_off(&scan.scene, &final_points, bound).1, 0);
+    }
+
     /// Curves of the synthetic path scan, frame by frame, as extracted.
     fn path_frames(
         camera: &Camera,
@@ -418,31 +554,18 @@ mod tests {
             },
             ScaleMode::Factor { factor: 1.0 },
         );
-        let (mut epochs, mut epoch_points) = (0, Vec::new());
-        for curves in frames.clone() {
-            let out = solver.add_frame(curves, 0);
-            if out.epoch.is_some() {
-                epochs += 1;
-            } else {
-                assert!(out.points.is_empty(), "points between epochs");
-            }
-            epoch_points.extend(out.points.iter().map(|p| p.xyz));
-            // Give the background solve time, as frames at 30 fps would.
-            std::thread::sleep(std::time::Duration::from_millis(20));
-        }
-        assert!(epochs >= 2, "{epochs} epochs");
+        let epochs = live_epochs(&mut solver, frames.clone());
+        assert!(epochs.len() >= 2, "{} epochs", epochs.len());
         // Nearly every live point on the surface. Not every one: an epoch made on the
         // evidence of a partial sweep (when it is made depends on the machine's load)
         // can place a few of the newest frames a few per cent off (the known limit).
-        let off = epoch_points
-            .iter()
-            .filter(|p| worst_off_surface(&scan.scene, &[**p]) > 1e-3)
-            .count();
-        assert!(
-            off * 50 < epoch_points.len(),
-            "{off} of {} live points off the surface",
-            epoch_points.len()
-        );
+        let (off, all) = epochs.iter().fold((0, 0), |(off, all), points| {
+            (
+                off + points_off(&scan.scene, points, 1e-3).0,
+                all + points.len(),
+            )
+        });
+        assert!(off * 50 < all, "{off} of {all} live points off the surface");
         let live = solver.finish().expect("final solve");
         let offline = crate::pipeline::reconstruct_curves(
             frames,
