@@ -37,7 +37,7 @@ while (($(date +%s) < end)); do
     while kill -0 "$pid" 2>/dev/null; do
         if [[ -r /proc/$pid/status ]]; then
             rss=$(awk '/^VmRSS:/ {print $2}' "/proc/$pid/status" 2>/dev/null || echo 0)
-            fds=$(find "/proc/$pid/fd" -mindepth 1 2>/dev/null | wc -l)
+            fds=$( (find "/proc/$pid/fd" -mindepth 1 2>/dev/null || true) | wc -l)
             printf '%s\t%s\t%s\t%s\t%s\n' "$(($(date +%s) - start))" "$pass" "$pid" "$rss" "$fds" >>"$out/rss.tsv"
         fi
         sleep "$sample_s" &
