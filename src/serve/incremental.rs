@@ -435,7 +435,9 @@ mod tests {
     /// 18-21 of laser 1: 0.2-1.5 % off, claiming 0.03-0.21 %), planes their crossings
     /// leave free to turn and the motion term pins, with a deviation 4-7 times too small;
     /// with every pose joint (`max_anchor_poses` 300) the final cloud has 130, with 20
-    /// anchors (the rest fitted against them) none.
+    /// anchors (the rest fitted against them) none. All joint, the planes' median error
+    /// is 7.1 of their own deviations (0.67 if honest), 3.5 without the roll's swing:
+    /// the deviations are optimistic throughout, most where the motion term pins.
     #[test]
     #[ignore = "fails: the deviation of motion-pinned planes is too small (issue 17/18)"]
     fn epochs_are_monotone_in_evidence() {
