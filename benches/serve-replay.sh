@@ -26,7 +26,7 @@ rm -rf "$RUN"; mkdir -p "$RUN"
 PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
 "$BIN" serve --camera "$SIM/camera.yml" --replay "$SIM/frames.dump" --rate realtime \
     --out-dir "$RUN/out" --out "$RUN/cloud.ply" --report "$RUN/report.json" \
-    --status-socket "$RUN/status.sock" --stream-tcp "127.0.0.1:$PORT" 2> "$RUN/serve.log" &
+    --status-socket "$RUN/status.sock" --stream-tcp "127.0.0.1:$PORT" --http "" 2> "$RUN/serve.log" &
 SERVE=$!
 for _ in $(seq 200); do [ -S "$RUN/status.sock" ] && break; sleep 0.05; done
 "$BIN" tail --connect "127.0.0.1:$PORT" --out "$RUN/a.ply" 2> "$RUN/a.log" &

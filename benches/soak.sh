@@ -31,7 +31,7 @@ while (($(date +%s) < end)); do
     pass=$((pass + 1))
     "$bin" serve --camera "$camera" --replay "$dump" --rate realtime \
         --out-dir "$out/state" --out "$out/cloud.ply" --report "$out/report.json" \
-        --status-socket "$out/status.sock" --stream-unix "$out/cloud.sock" --stream-tcp "" \
+        --status-socket "$out/status.sock" --stream-unix "$out/cloud.sock" --stream-tcp "" --http "" \
         2>>"$out/serve.log" &
     pid=$!
     while kill -0 "$pid" 2>/dev/null; do
