@@ -394,25 +394,23 @@ mod tests {
         points: &[Point],
         tolerance: f64,
     ) -> (usize, usize) {
-        let ratio = |p: &Point| {
-            let [x, y, z] = p.xyz.map(f64::from);
-            scene.inverse_depth(x / z, y / z) * z
-        };
-        let mut all: Vec<f64> = points.iter().map(ratio).collect();
-        all.sort_by(f64::total_cmp);
-        let Some(&s0) = all.get(all.len() / 2) else {
+        let ratios: Vec<f64> = points
+            .iter()
+            .map(|p| {
+                let [x, y, z] = p.xyz.map(f64::from);
+                scene.inverse_depth(x / z, y / z) * z
+            })
+            .collect();
+        let mut sorted = ratios.clone();
+        sorted.sort_by(f64::total_cmp);
+        let Some(&s0) = sorted.get(sorted.len() / 2) else {
             return (0, 0);
         };
-        let off = all
-            .iter()
-            .filter(|s| (*s / s0 - 1.0).abs() > tolerance)
-            .count();
+        let errors: Vec<f64> = ratios.iter().map(|s| (s / s0 - 1.0).abs()).collect();
+        let off = errors.iter().filter(|e| **e > tolerance).count();
         let mut planes: std::collections::HashMap<(u32, u8), Vec<f64>> = Default::default();
-        for p in points {
-            planes
-                .entry((p.frame, p.laser))
-                .or_default()
-                .push((ratio(p) / s0 - 1.0).abs());
+        for (p, e) in points.iter().zip(&errors) {
+            planes.entry((p.frame, p.laser)).or_default().push(*e);
         }
         let on_wrong = planes
             .values_mut()
@@ -445,7 +443,7 @@ mod tests {
         let mut config = Config::default();
         config.solve.max_anchor_poses = 40;
         let (scan, frames) = path_frames(&camera, &config);
-        // Noise of 0.3 px along every curve, so that the planes the first epochs see
+        // Noise of 0.05 px on every curve point, so that the planes the first epochs see
         // crossed a few times are poorly fixed, and the depth rule has work to do.
         let mut rng = crate::solve::synthetic::Rng::new(5);
         let sigma = 0.05 / camera.fx;
