@@ -186,6 +186,10 @@ pub(super) fn linear_start(
             found = start.focal_scale,
             "linear start in the rays of a focal scale"
         );
+        // A scale that is no number ends the rounds; the last start made stands.
+        if !(relative.is_finite() && relative > 0.0) && best.is_some() {
+            break;
+        }
         best = Some((start, planes));
         if (relative - 1.0).abs() < FOCAL_START_TOLERANCE || !relative.is_finite() {
             break;
