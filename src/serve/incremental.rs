@@ -387,13 +387,12 @@ mod tests {
     }
 
     /// Of one epoch's points (one global scale, fitted as the median), how many lie more
-    /// than `tolerance` (relative depth) off the surface, and how many lie on planes (one
-    /// laser of one frame) whose median point does.
+    /// than `tolerance` (relative depth) off the surface.
     fn points_off(
         scene: &crate::solve::synthetic::Scene,
         points: &[Point],
         tolerance: f64,
-    ) -> (usize, usize) {
+    ) -> usize {
         let ratios: Vec<f64> = points
             .iter()
             .map(|p| {
@@ -404,49 +403,94 @@ mod tests {
         let mut sorted = ratios.clone();
         sorted.sort_by(f64::total_cmp);
         let Some(&s0) = sorted.get(sorted.len() / 2) else {
-            return (0, 0);
+            return 0;
         };
-        let errors: Vec<f64> = ratios.iter().map(|s| (s / s0 - 1.0).abs()).collect();
-        let off = errors.iter().filter(|e| **e > tolerance).count();
+        ratios
+            .iter()
+            .filter(|s| (*s / s0 - 1.0).abs() > tolerance)
+            .count()
+    }
+
+    /// Of one epoch's points, how many lie on planes (one laser of one frame) whose depth
+    /// is off by more than `tolerance` (relative, after one global scale fitted as the
+    /// median). A plane's error is measured on the plane itself, not at its noisy
+    /// points: each point is on its estimated plane, so `Z (v_true · r)` along the point's
+    /// own ray `r` is the ratio of the true plane's inverse depth to the estimated one's.
+    /// (The scene's depth at the point would add the point's own noise, which is
+    /// several per cent where a plane meets the surface at a grazing angle, and is no
+    /// part of the plane's uncertainty.)
+    fn points_on_wrong_planes(
+        scan: &crate::solve::synthetic::PathScan,
+        points: &[Point],
+        tolerance: f64,
+    ) -> usize {
+        let ratios: Vec<f64> = points
+            .iter()
+            .map(|p| {
+                let [x, y, z] = p.xyz.map(f64::from);
+                let truth = scan.planes[p.frame as usize][usize::from(p.laser)];
+                z * truth.dot(&nalgebra::Vector3::new(x / z, y / z, 1.0))
+            })
+            .collect();
+        let mut sorted = ratios.clone();
+        sorted.sort_by(f64::total_cmp);
+        let Some(&s0) = sorted.get(sorted.len() / 2) else {
+            return 0;
+        };
         let mut planes: std::collections::HashMap<(u32, u8), Vec<f64>> = Default::default();
-        for (p, e) in points.iter().zip(&errors) {
-            planes.entry((p.frame, p.laser)).or_default().push(*e);
+        for (p, r) in points.iter().zip(&ratios) {
+            planes
+                .entry((p.frame, p.laser))
+                .or_default()
+                .push(r / s0 - 1.0);
         }
-        let on_wrong = planes
+        planes
             .values_mut()
             .filter_map(|e| {
                 e.sort_by(f64::total_cmp);
-                (e[e.len() / 2] > tolerance).then_some(e.len())
+                (e[e.len() / 2].abs() > tolerance).then_some(e.len())
             })
-            .sum();
-        (off, on_wrong)
+            .sum()
     }
 
-    /// More evidence never makes an epoch worse: no epoch has more points on planes
-    /// that are off by more than three of the depth rule's deviations (the rule keeps a
-    /// point only where its plane fixes its depth to `max_depth_sigma`) than the epoch
-    /// before it, and the final cloud has none.
+    /// More evidence never makes an epoch worse: at 0.05 px of noise on every curve
+    /// point (several times what extraction measures on rendered frames), no epoch has
+    /// more points on planes that are off by more than three of the depth rule's
+    /// deviations (the rule keeps a point only where its plane fixes its depth to
+    /// `max_depth_sigma`) than the epoch before it, and the final cloud has none.
     ///
-    /// Fails today (issue 18; the defect is the estimator's, issue 17): at 0.05 px of
-    /// curve noise the epochs have 0, 0, 5, 8, 13, 28, 41, 67 such points and the final
-    /// cloud 89 of 170,781. They lie on runs of consecutive frames of one laser (frames
-    /// 18-21 of laser 1: 0.2-1.5 % off, claiming 0.03-0.21 %), planes their crossings
-    /// leave free to turn and the motion term pins, with a deviation 4-7 times too small;
-    /// with every pose joint (`max_anchor_poses` 300) the final cloud has 130, with 20
-    /// anchors (the rest fitted against them) none. All joint, the planes' median error
-    /// is 7.1 of their own deviations (0.67 if honest), 3.5 without the roll's swing:
-    /// the deviations are optimistic throughout, most where the motion term pins.
+    /// This test once reported 89 such points in the final cloud: it took a plane's error
+    /// as the median of its points' error *sizes*, which is the points' own noise on a
+    /// plane that meets the surface at a grazing angle (1.7 % on one 89-point curve
+    /// whose plane was right). It now measures the planes themselves.
     #[test]
-    #[ignore = "fails: the deviation of motion-pinned planes is too small (issue 17/18)"]
     fn epochs_are_monotone_in_evidence() {
+        assert_epochs_monotone(0.05);
+    }
+
+    /// The same at 0.3 px of curve noise, where the first epochs see each plane crossed
+    /// only a few times. Fails (issue 17): the first epoch (15 frames) keeps points on
+    /// planes over 1 % off. Offline on the first 16 frames at this noise the planes'
+    /// errors are 1.2-3.2 of their own deviations (median over planes; 0.67 if honest)
+    /// for 8 draws of the noise, and 0.67 on 60 frames; the errors vary smoothly over
+    /// the frames, with the motion term or without it: a common mode of the thin
+    /// evidence that the linearised covariance underrates.
+    #[test]
+    #[ignore = "fails: with few frames at 0.3 px the deviations are 2-3x optimistic (issue 17)"]
+    fn epochs_are_monotone_in_evidence_at_high_noise() {
+        assert_epochs_monotone(0.3);
+    }
+
+    /// The epochs' and final cloud's points on wrong planes (see
+    /// [`epochs_are_monotone_in_evidence`]) with `noise_px` of Gaussian noise on every
+    /// curve point.
+    fn assert_epochs_monotone(noise_px: f64) {
         let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
         let mut config = Config::default();
         config.solve.max_anchor_poses = 40;
         let (scan, frames) = path_frames(&camera, &config);
-        // Noise of 0.05 px on every curve point, so that the planes the first epochs see
-        // crossed a few times are poorly fixed, and the depth rule has work to do.
         let mut rng = crate::solve::synthetic::Rng::new(5);
-        let sigma = 0.05 / camera.fx;
+        let sigma = noise_px / camera.fx;
         let frames: Vec<Vec<Curve>> = frames
             .into_iter()
             .map(|curves| {
@@ -476,7 +520,7 @@ mod tests {
         let epochs = live_epochs(&mut solver, frames);
         let failing: Vec<usize> = epochs
             .iter()
-            .map(|points| points_off(&scan.scene, points, bound).1)
+            .map(|points| points_on_wrong_planes(&scan, points, bound))
             .collect();
         assert!(epochs.len() >= 3, "{} epochs", epochs.len());
         for (e, pair) in failing.windows(2).enumerate() {
@@ -499,7 +543,7 @@ mod tests {
                 frame: frames_of.expect("frames")[i],
             })
             .collect();
-        assert_eq!(points_off(&scan.scene, &final_points, bound).1, 0);
+        assert_eq!(points_on_wrong_planes(&scan, &final_points, bound), 0);
     }
 
     /// Curves of the synthetic path scan, frame by frame, as extracted.
@@ -561,7 +605,7 @@ mod tests {
         // can place a few of the newest frames a few per cent off (the known limit).
         let (off, all) = epochs.iter().fold((0, 0), |(off, all), points| {
             (
-                off + points_off(&scan.scene, points, 1e-3).0,
+                off + points_off(&scan.scene, points, 1e-3),
                 all + points.len(),
             )
         });
