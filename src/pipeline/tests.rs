@@ -221,3 +221,66 @@ fn frames_fitted_against_anchors_are_as_exact_as_joint_ones() {
         100.0 * worst
     );
 }
+
+/// A straight curve of `n` points one pixel apart through the image centre, at `slope`,
+/// zigzagging by ±`jag_px` pixels across its line (`phase` flips the zigzag).
+fn jagged_line(camera: &Camera, slope: f64, jag_px: f64, phase: usize, n: usize) -> Curve {
+    let f = camera.fx;
+    let norm = (1.0 + slope * slope).sqrt();
+    let points: Vec<[f64; 2]> = (0..n)
+        .map(|k| {
+            let t = (k as f64 - (n / 2) as f64) / f;
+            let off = if (k + phase) % 2 == 0 {
+                jag_px
+            } else {
+                -jag_px
+            } / f;
+            // Along the line, then across it by `off`.
+            [t - off * slope / norm, slope * t + off / norm]
+        })
+        .collect();
+    Curve {
+        laser: 0,
+        points_px: points
+            .iter()
+            .map(|p| camera.pixel_from_normalized(p[0], p[1]).map(|c| c as f32))
+            .collect(),
+        strength: vec![1.0; points.len()],
+        polyline: points.clone(),
+        points,
+    }
+}
+
+/// Two curves that cross once, their polylines jagged by noise so that they cross
+/// several times there, give one crossing, at the crossing of their lines and at their
+/// lines' angle; counted more often, the same noise would pass for several observations.
+#[test]
+fn jagged_polylines_that_cross_several_times_give_one_crossing() {
+    let camera = camera();
+    let config = Config::default();
+    let (slope_a, slope_b) = (0.0, 0.3);
+    let a = jagged_line(&camera, slope_a, 0.4, 0, 41);
+    let mut b = jagged_line(&camera, slope_b, 0.4, 1, 41);
+    b.laser = 1;
+    // The polylines alone cross more than once.
+    let polyline_crossings =
+        crate::intersect::find_crossings(&[&a.polyline, &b.polyline], config.solve.min_sin_angle);
+    assert!(polyline_crossings.len() > 1, "{polyline_crossings:?}");
+    let mut scan = Scan::new(&camera, &config);
+    scan.add_frame(vec![a]);
+    scan.add_frame(vec![b]);
+    assert_eq!(scan.num_crossings(), polyline_crossings.len());
+    scan.refine_crossings(&camera, &config);
+    assert_eq!(scan.num_crossings(), 1);
+    let c = scan.crossings[0];
+    let px = c.u[0].hypot(c.u[1]) * camera.fx;
+    assert!(px < 0.2, "{px} px from the lines' crossing");
+    let sin_true = (slope_b.atan() - slope_a.atan()).sin();
+    // The fits' angle, within what a zigzag of 0.8 px from peak to peak over the 12
+    // points of the fits leaves.
+    assert!(
+        (c.sin_angle - sin_true).abs() < 0.05,
+        "{} against {sin_true}",
+        c.sin_angle
+    );
+}
