@@ -453,10 +453,6 @@ pub fn dense_run(points: &[[f64; 2]], near: [f64; 2], radius: f64) -> &[[f64; 2]
 /// are off their curve by up to their tolerance; the dense points are not, so this
 /// brings crossings to the detector's own sub-pixel accuracy.
 ///
-/// Returns the point and the sine of the angle between the two fits there: the curves'
-/// angle over `radius`, which the polylines' segments may not show where they are
-/// jagged by noise.
-///
 /// `None` when a fit is impossible (too few points) or the refined point moves more
 /// than `radius` (the fits do not meet near the crossing): keep `u` then.
 pub fn refine_crossing(
@@ -464,7 +460,7 @@ pub fn refine_crossing(
     b: &[[f64; 2]],
     u: [f64; 2],
     radius: f64,
-) -> Option<([f64; 2], f64)> {
+) -> Option<[f64; 2]> {
     let fa = LocalQuadratic::fit(dense_run(a, u, radius))?;
     let fb = LocalQuadratic::fit(dense_run(b, u, radius))?;
     let (mut t, mut s) = (fa.param_of(u), fb.param_of(u));
@@ -494,10 +490,7 @@ pub fn refine_crossing(
     {
         return None;
     }
-    let (ta, tb) = (fa.tangent(t), fb.tangent(s));
-    let sin_angle =
-        (ta[0] * tb[1] - ta[1] * tb[0]).abs() / (ta[0].hypot(ta[1]) * tb[0].hypot(tb[1]));
-    Some((p, sin_angle))
+    Some(p)
 }
 
 #[cfg(test)]
@@ -632,7 +625,7 @@ mod tests {
             })
             .expect("two candidates");
         let before = (u[0] - truth[0]).hypot(u[1] - truth[1]) * f;
-        let (refined, _) = refine_crossing(&a, &b, u, 6.0 / f).expect("refines");
+        let refined = refine_crossing(&a, &b, u, 6.0 / f).expect("refines");
         let after = (refined[0] - truth[0]).hypot(refined[1] - truth[1]) * f;
         assert!(
             after < 0.002,

@@ -31,8 +31,6 @@ use std::time::Instant;
 
 use image::RgbImage;
 use nalgebra::Vector3;
-use std::collections::HashMap;
-
 use rayon::prelude::*;
 
 use crate::camera::Camera;
@@ -204,14 +202,7 @@ impl Scan {
     }
 
     /// Refines the crossings found since the last call on the curves' dense points
-    /// (`[intersect] refine_radius_px`), in parallel, and keeps one of each run of
-    /// crossings of the same two curves that refine to within that radius of each other.
-    ///
-    /// Polylines jagged by noise cross several times where their curves cross once (and
-    /// two curves running side by side, at a shallow angle, cross again and again); the
-    /// refinement brings such a run to one place and one angle, the local fits', and
-    /// counting it more than once would count the same two curves' noise as several
-    /// observations, the planes' deviations too small by its square root.
+    /// (`[intersect] refine_radius_px`), in parallel.
     pub fn refine_crossings(&mut self, camera: &Camera, config: &Config) {
         let radius = config.intersect.refine_radius_px / camera.fx.max(camera.fy);
         let planes = &self.planes;
@@ -219,40 +210,12 @@ impl Scan {
             self.crossings[self.refined..].par_iter_mut().for_each(|c| {
                 let a = planes[c.a as usize].dense_near(c.u, radius);
                 let b = planes[c.b as usize].dense_near(c.u, radius);
-                if let Some((u, sin_angle)) = crate::intersect::refine_crossing(a, b, c.u, radius) {
+                if let Some(u) = crate::intersect::refine_crossing(a, b, c.u, radius) {
                     c.u = u;
-                    c.sin_angle = sin_angle;
                 }
             });
-            self.drop_repeated_crossings(radius);
         }
         self.refined = self.crossings.len();
-    }
-
-    /// Of the crossings not yet refined (all of a pair of curves are found together,
-    /// when the later curve is added), drops each that lies within `radius` of an
-    /// earlier one of the same two curves.
-    fn drop_repeated_crossings(&mut self, radius: f64) {
-        let mut kept: HashMap<[u32; 2], Vec<[f64; 2]>> = HashMap::new();
-        let mut write = self.refined;
-        for k in self.refined..self.crossings.len() {
-            let ids = self.curve_ids[k];
-            let key = [ids[0].min(ids[1]), ids[0].max(ids[1])];
-            let u = self.crossings[k].u;
-            let seen = kept.entry(key).or_default();
-            if seen
-                .iter()
-                .any(|q| (q[0] - u[0]).hypot(q[1] - u[1]) <= radius)
-            {
-                continue;
-            }
-            seen.push(u);
-            self.crossings[write] = self.crossings[k];
-            self.curve_ids[write] = ids;
-            write += 1;
-        }
-        self.crossings.truncate(write);
-        self.curve_ids.truncate(write);
     }
 
     fn curve(&self, cid: u32) -> &Curve {
