@@ -95,3 +95,34 @@ fn stream_clients_over_the_cap_are_closed_and_the_scan_is_still_written() {
     assert!(stderr.contains("stream_clients_max"), "{stderr}");
     assert!(dir.join("cloud.ply").exists() && dir.join("report.json").exists());
 }
+
+/// `compare --json | head` and `compare | head` end with success and no panic, as
+/// `inspect` does: the report is written through the same broken-pipe-aware output.
+#[test]
+fn a_closed_stdout_ends_compare_quietly_with_success() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let ply = tmp.path().join("c.ply");
+    crossline::ply::write_ply(&ply, &crate::analytic_cloud(), &[]).expect("write");
+    for json in [true, false] {
+        let mut cmd = crossline();
+        cmd.arg("compare").arg(&ply).arg("--reference").arg(&ply);
+        if json {
+            cmd.arg("--json");
+        }
+        let mut child = cmd
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("spawn");
+        drop(child.stdout.take());
+        let out = child.wait_with_output().expect("wait");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            out.status.success(),
+            "--json {json}: {}: {stderr}",
+            out.status
+        );
+        assert!(!stderr.contains("panicked"), "--json {json}: {stderr}");
+        assert!(!stderr.contains("Broken pipe"), "--json {json}: {stderr}");
+    }
+}
