@@ -126,3 +126,43 @@ fn a_closed_stdout_ends_compare_quietly_with_success() {
         assert!(!stderr.contains("Broken pipe"), "--json {json}: {stderr}");
     }
 }
+
+/// A recorded frame whose CRC is right but whose JPEG cannot be used (cut to a third
+/// before it was recorded) is skipped and counted by `reconstruct`, as `serve` does:
+/// the run goes on, says how many were skipped, and the report counts them.
+#[test]
+fn reconstruct_skips_and_counts_a_frame_it_cannot_decode() {
+    use crossline::capture::dump::{DumpReader, DumpWriter};
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let damaged = tmp.path().join("damaged.dump");
+    let mut reader = DumpReader::open(&dump()).expect("fixture");
+    let mut writer = DumpWriter::create(&damaged, &reader.header().clone()).expect("create");
+    let mut frames = 0;
+    while let Some(r) = reader.next_record().expect("record") {
+        let payload = if frames == 50 {
+            &r.payload[..r.payload.len() / 3]
+        } else {
+            &r.payload[..]
+        };
+        writer
+            .write_frame(r.sequence, r.timestamp_nanos, r.flags, payload)
+            .expect("write");
+        frames += 1;
+    }
+    writer.finish().expect("finish");
+    let report = tmp.path().join("report.json");
+    let out = crate::util::reconstruct(&damaged, &camera(), &tmp.path().join("c.ply"))
+        .arg("--report")
+        .arg(&report)
+        .output()
+        .expect("spawn");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{}: {stderr}", out.status);
+    assert!(
+        stderr.contains(&format!("1 of {frames} frames could not be decoded")),
+        "{stderr}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    assert_eq!(report["frames_skipped"], 1, "{report}");
+}
