@@ -53,21 +53,39 @@ fn stream_clients_over_the_cap_are_closed_and_the_scan_is_still_written() {
     use std::os::unix::fs::PermissionsExt;
     let mode = std::fs::metadata(&sock).expect("meta").permissions().mode() & 0o777;
     assert_eq!(mode, 0o660, "{mode:o}");
-    // A second daemon on the same out_dir is refused, naming the first.
+    // A second daemon on the same out_dir, of another input and with the first's
+    // socket paths, is refused naming the first, before it touches anything: the
+    // first's live state is not moved aside and its sockets are not replaced (the
+    // clients below connect to the first).
+    let other = dir.join("other.dump");
+    std::fs::copy(dump(), &other).expect("copy");
     let second = crossline()
         .arg("serve")
         .arg("--camera")
         .arg(camera())
         .arg("--replay")
-        .arg(dump())
+        .arg(&other)
         .arg("--out-dir")
         .arg(dir.join("out"))
-        .args(["--stream-tcp", "", "--status-socket", "", "--http", ""])
+        .arg("--status-socket")
+        .arg(dir.join("status.sock"))
+        .arg("--stream-unix")
+        .arg(&sock)
+        .args(["--stream-tcp", "", "--http", ""])
         .output()
         .expect("second");
     let msg = String::from_utf8_lossy(&second.stderr);
     assert!(!second.status.success(), "{msg}");
     assert!(msg.contains(&format!("pid {}", child.id())), "{msg}");
+    let moved: Vec<_> = std::fs::read_dir(dir.join("out"))
+        .expect("out_dir")
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".state"))
+        .collect();
+    assert!(moved.is_empty(), "the first's state was moved: {moved:?}");
+    assert!(dir.join("out/state").is_dir());
+    UnixStream::connect(dir.join("status.sock")).expect("the first's status socket");
     // Five clients, two served: the other three are closed without a HELLO.
     let clients: Vec<UnixStream> = (0..5)
         .map(|_| {
