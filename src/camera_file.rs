@@ -788,6 +788,15 @@ avg_reprojection_error: 2.1e-01
         std::fs::write(&path, &text).expect("write");
         let err = load(&path).expect_err("too large");
         assert!(matches!(err, CameraFileError::TooLarge { .. }), "{err}");
+        // A ROS file whose unused rectification_matrix holds a huge array likewise.
+        let path = dir.path().join("camera_info.yaml");
+        let ros = to_ros_yaml(&sample(), "cam");
+        let long = format!("data: [1{}]", ", 0".repeat(MAX_FILE_BYTES as usize / 3));
+        let text = ros.replacen("data: [1, 0, 0, 0, 1, 0, 0, 0, 1]", &long, 1);
+        assert!(text.len() as u64 > MAX_FILE_BYTES);
+        std::fs::write(&path, &text).expect("write");
+        let err = load(&path).expect_err("too large");
+        assert!(matches!(err, CameraFileError::TooLarge { .. }), "{err}");
     }
 
     #[test]

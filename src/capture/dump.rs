@@ -959,21 +959,31 @@ mod tests {
 
     #[test]
     fn a_cut_off_jpeg_is_not_decoded_as_a_grey_frame() {
-        let img = RgbImage::from_fn(64, 48, |x, y| image::Rgb([(x * 4) as u8, (y * 5) as u8, 9]));
+        // Textured and large enough that its scan is most of the file.
+        let img = RgbImage::from_fn(320, 240, |x, y| {
+            image::Rgb([
+                (x * 7 % 256) as u8,
+                (y * 5 % 256) as u8,
+                ((x ^ y) % 256) as u8,
+            ])
+        });
         let mut jpeg = Vec::new();
         image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 85)
             .encode_image(&img)
             .expect("encode");
         let header = DumpHeader {
             fourcc: *b"MJPG",
-            width: 64,
-            height: 48,
+            width: 320,
+            height: 240,
             bytes_per_line: 0,
             ..header()
         };
         assert!(jpeg_is_complete(&jpeg));
         decode_rgb(&header, &jpeg).expect("whole");
         let third = &jpeg[..jpeg.len() / 3];
+        // Cut inside the scan, where the decoder fills the rest with grey unasked.
+        let scan = jpeg_segments(&jpeg).expect("segments").1;
+        assert!(scan < third.len(), "scan at {scan} of {}", third.len());
         assert!(!jpeg_is_complete(third));
         let err = decode_rgb(&header, third).expect_err("cut off");
         assert!(err.contains("end-of-image"), "{err}");

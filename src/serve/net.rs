@@ -706,3 +706,45 @@ async fn write_line(sock: &mut tokio::net::UnixStream, line: &str) -> std::io::R
         .await
         .map_err(|_| std::io::Error::new(std::io::ErrorKind::TimedOut, "status client stuck"))?
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A bound socket is never reachable with a wider mode than it is given: while
+    /// one is bound at the same path again and again, a thread watching that path
+    /// sees no mode but 0660 (bind alone would leave the umask's, 0755 under the
+    /// usual 022, until a chmod).
+    #[test]
+    fn a_socket_is_never_seen_with_another_mode_than_its_own() {
+        use std::os::unix::fs::PermissionsExt;
+        use std::sync::atomic::AtomicBool;
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("s.sock");
+        let stop = Arc::new(AtomicBool::new(false));
+        let watcher = {
+            let (path, stop) = (path.clone(), stop.clone());
+            std::thread::spawn(move || {
+                let mut seen = std::collections::BTreeSet::new();
+                while !stop.load(Ordering::Relaxed) {
+                    if let Ok(m) = std::fs::symlink_metadata(&path) {
+                        seen.insert(m.permissions().mode() & 0o777);
+                    }
+                }
+                seen
+            })
+        };
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_io()
+            .build()
+            .expect("runtime");
+        let _entered = runtime.enter();
+        for _ in 0..2000 {
+            drop(bind_unix(&path, 0o660).expect("bind"));
+        }
+        stop.store(true, Ordering::Relaxed);
+        let seen = watcher.join().expect("watcher");
+        let modes: Vec<String> = seen.iter().map(|m| format!("{m:o}")).collect();
+        assert_eq!(modes, ["660"], "modes seen at {}", path.display());
+    }
+}

@@ -58,7 +58,7 @@ pub(crate) fn wait_for(path: &Path, within: Duration) {
     }
 }
 
-fn wait_exit(child: &mut Child, within: Duration) -> std::process::ExitStatus {
+pub(crate) fn wait_exit(child: &mut Child, within: Duration) -> std::process::ExitStatus {
     let t = Instant::now();
     loop {
         if let Some(status) = child.try_wait().expect("wait") {
