@@ -479,23 +479,14 @@ mod tests {
     #[test]
     fn a_cut_off_jpeg_frame_is_skipped_and_counted_not_used() {
         let dir = tempfile::tempdir().expect("tempdir");
-        // Textured and large enough that a third of the file ends inside its scan,
-        // which the decoder would fill with grey unasked.
-        let img = RgbImage::from_fn(320, 240, |x, y| {
-            image::Rgb([
-                (x * 7 % 256) as u8,
-                (y * 5 % 256) as u8,
-                ((x ^ y) % 256) as u8,
-            ])
-        });
+        let img = crate::capture::dump::tests::textured_image();
         let whole = dir.path().join("frame_000000.jpg");
         img.save(&whole).expect("save");
         let bytes = std::fs::read(&whole).expect("read");
         let third = &bytes[..bytes.len() / 3];
-        let scan = bytes
-            .windows(2)
-            .position(|w| w == [0xFF, 0xDA])
-            .expect("a scan");
+        let scan = crate::capture::dump::jpeg_segments(&bytes)
+            .expect("segments")
+            .1;
         assert!(scan < third.len(), "scan at {scan} of {}", third.len());
         let cut = dir.path().join("frame_000001.jpg");
         std::fs::write(&cut, third).expect("cut");

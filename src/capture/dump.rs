@@ -558,7 +558,7 @@ type Segment = (u8, usize, usize);
 
 /// The marker segments before the first scan, and the offset of the SOS marker.
 /// `None` if the data is not a well-formed JPEG header.
-fn jpeg_segments(jpeg: &[u8]) -> Option<(Vec<Segment>, usize)> {
+pub(crate) fn jpeg_segments(jpeg: &[u8]) -> Option<(Vec<Segment>, usize)> {
     if jpeg.get(..2)? != [0xFF, 0xD8] {
         return None;
     }
@@ -737,8 +737,20 @@ pub fn decode_rgb(header: &DumpHeader, payload: &[u8]) -> Result<RgbImage, Strin
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
+
+    /// A 320x240 image textured so that its JPEG's scan is most of the file (a third of
+    /// the file ends inside the scan, which a decoder fills with grey unasked).
+    pub(crate) fn textured_image() -> RgbImage {
+        RgbImage::from_fn(320, 240, |x, y| {
+            image::Rgb([
+                (x * 7 % 256) as u8,
+                (y * 5 % 256) as u8,
+                ((x ^ y) % 256) as u8,
+            ])
+        })
+    }
 
     fn header() -> DumpHeader {
         DumpHeader {
@@ -959,14 +971,7 @@ mod tests {
 
     #[test]
     fn a_cut_off_jpeg_is_not_decoded_as_a_grey_frame() {
-        // Textured and large enough that its scan is most of the file.
-        let img = RgbImage::from_fn(320, 240, |x, y| {
-            image::Rgb([
-                (x * 7 % 256) as u8,
-                (y * 5 % 256) as u8,
-                ((x ^ y) % 256) as u8,
-            ])
-        });
+        let img = textured_image();
         let mut jpeg = Vec::new();
         image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 85)
             .encode_image(&img)

@@ -400,15 +400,21 @@ mod tests {
                 scene.inverse_depth(x / z, y / z) * z
             })
             .collect();
-        let mut sorted = ratios.clone();
+        relative_to_median(&ratios)
+            .iter()
+            .filter(|e| e.abs() > tolerance)
+            .count()
+    }
+
+    /// Each of `ratios` over their median, less one: the relative errors after one global
+    /// scale. Empty for no ratios.
+    fn relative_to_median(ratios: &[f64]) -> Vec<f64> {
+        let mut sorted = ratios.to_vec();
         sorted.sort_by(f64::total_cmp);
         let Some(&s0) = sorted.get(sorted.len() / 2) else {
-            return 0;
+            return Vec::new();
         };
-        ratios
-            .iter()
-            .filter(|s| (*s / s0 - 1.0).abs() > tolerance)
-            .count()
+        ratios.iter().map(|r| r / s0 - 1.0).collect()
     }
 
     /// Of one epoch's points, how many lie on planes (one laser of one frame) whose depth
@@ -432,17 +438,9 @@ mod tests {
                 z * truth.dot(&nalgebra::Vector3::new(x / z, y / z, 1.0))
             })
             .collect();
-        let mut sorted = ratios.clone();
-        sorted.sort_by(f64::total_cmp);
-        let Some(&s0) = sorted.get(sorted.len() / 2) else {
-            return 0;
-        };
         let mut planes: std::collections::HashMap<(u32, u8), Vec<f64>> = Default::default();
-        for (p, r) in points.iter().zip(&ratios) {
-            planes
-                .entry((p.frame, p.laser))
-                .or_default()
-                .push(r / s0 - 1.0);
+        for (p, e) in points.iter().zip(relative_to_median(&ratios)) {
+            planes.entry((p.frame, p.laser)).or_default().push(e);
         }
         planes
             .values_mut()

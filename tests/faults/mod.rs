@@ -20,20 +20,27 @@ fn a_closed_stdout_ends_inspect_quietly_with_success() {
         ],
         vec!["inspect".into(), dump().display().to_string()],
     ] {
-        let mut child = crossline()
-            .args(&args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("spawn");
-        // `| head` that has already gone: the read end is closed before any write.
-        drop(child.stdout.take());
-        let out = child.wait_with_output().expect("wait");
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success(), "{args:?}: {}: {stderr}", out.status);
-        assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
-        assert!(!stderr.contains("Broken pipe"), "{args:?}: {stderr}");
+        let mut cmd = crossline();
+        cmd.args(&args);
+        assert_quiet_with_closed_stdout(cmd, &format!("{args:?}"));
     }
+}
+
+/// Runs `cmd` as under a `| head` that has already gone (the read end of its stdout
+/// closed before any write) and asserts that it ends with success, without a panic or
+/// a "Broken pipe" message; `label` names the run in the failure.
+fn assert_quiet_with_closed_stdout(mut cmd: std::process::Command, label: &str) {
+    let mut child = cmd
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    drop(child.stdout.take());
+    let out = child.wait_with_output().expect("wait");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{label}: {}: {stderr}", out.status);
+    assert!(!stderr.contains("panicked"), "{label}: {stderr}");
+    assert!(!stderr.contains("Broken pipe"), "{label}: {stderr}");
 }
 
 #[test]
@@ -128,21 +135,7 @@ fn a_closed_stdout_ends_compare_quietly_with_success() {
         if json {
             cmd.arg("--json");
         }
-        let mut child = cmd
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("spawn");
-        drop(child.stdout.take());
-        let out = child.wait_with_output().expect("wait");
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(
-            out.status.success(),
-            "--json {json}: {}: {stderr}",
-            out.status
-        );
-        assert!(!stderr.contains("panicked"), "--json {json}: {stderr}");
-        assert!(!stderr.contains("Broken pipe"), "--json {json}: {stderr}");
+        assert_quiet_with_closed_stdout(cmd, &format!("--json {json}"));
     }
 }
 
