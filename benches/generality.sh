@@ -30,6 +30,7 @@
 #   FRAMES=100 SEEDS="3 7" benches/generality.sh         # a quick look
 #   SEEDS="room bricks pipes" FRAMES=60 benches/generality.sh   # the built-in scenes
 #   FOCAL_OFF=0.8 benches/generality.sh                  # also recover a wrong focal length
+#   SEEDS=heldout WORK=target/bench-heldout benches/generality.sh   # the held-out draw
 #
 # Environment:
 #   CROSSLINE  the binary (default target/release/crossline)
@@ -42,8 +43,9 @@
 #              per cent; wrong_planes of planes; *_ratio are self / true planes; empty
 #              where there is no value)
 #   FRAMES     frames per configuration (default 300)
-#   SEEDS      the configurations (default: the 24 below); an entry that is not a number
-#              names a built-in scene (room, bricks, pipes), simulated with --seed 1
+#   SEEDS      the configurations (default: the 24 below; `heldout`: 101-124); an entry
+#              that is not a number names a built-in scene (room, bricks, pipes),
+#              simulated with --seed 1
 #   CONFIG     a crossline.toml for reconstruct
 #   EXTRA      extra reconstruct arguments (word-split), for both reconstructions
 #   FOCAL_OFF  a factor (e.g. 0.8): the self-calibrated reconstruction gets the camera
@@ -66,6 +68,10 @@ FRAMES=${FRAMES:-300}
 # Written once, before any result was seen, and not to be edited after: a different
 # draw goes through SEEDS=..., so that figures quoted from the default stay comparable.
 SEEDS=${SEEDS:-"1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19 20 21 22 23 24"}
+# The held-out draw (`SEEDS=heldout`): seeds 101-124, fixed on 2026-12-02 before any
+# of them was run. Seeds 1-24 have been looked at by every change since they were
+# chosen, so they are a tuning set by now; a change is judged on both.
+[ "$SEEDS" = heldout ] && SEEDS=$(seq -s ' ' 101 124)
 FOCAL_OFF=${FOCAL_OFF:-}
 TIMEOUT=${TIMEOUT:-0}
 [ -x "$BIN" ] || { echo "build first: cargo build --release (or set CROSSLINE)" >&2; exit 2; }
