@@ -382,17 +382,28 @@ impl<F: Fn(&str, usize, usize) + Sync> Progress for F {
     }
 }
 
-/// Runs the whole offline pipeline over image files.
-#[allow(clippy::too_many_arguments)]
-pub fn reconstruct_files(
+/// The curves of every frame of a recording, as [`reconstruct_files`] extracts them.
+pub struct Extracted {
+    /// Per frame (skipped frames have none), in frame order.
+    pub per_frame: Vec<Vec<Curve>>,
+    /// The background the curves were measured against.
+    pub background: Background,
+    /// Frames that could not be decoded and were skipped.
+    pub frames_skipped: usize,
+    pub background_s: f64,
+    pub extract_s: f64,
+}
+
+/// The background policy and extraction over a recording: the laser-off frame
+/// `background` or the temporal median of frames sampled over the recording, then every
+/// frame's curves in parallel. Undecodable frames are skipped and counted.
+pub fn extract_frames(
     frames: &FrameSource,
     background: Option<&Path>,
     camera: &Camera,
     config: &Config,
-    planes: PlaneSource<'_>,
-    scale: &ScaleMode,
     progress: &dyn Progress,
-) -> Result<Reconstruction, ReconstructError> {
+) -> Result<Extracted, ReconstructError> {
     let t = Instant::now();
     // Undecodable frames among the background's samples are left out of the median;
     // they are counted once, below, when extraction meets them again.
@@ -436,16 +447,6 @@ pub fn reconstruct_files(
             Ok(curves)
         },
     )?;
-    let extract_s = t.elapsed().as_secs_f64();
-
-    let mut rec = reconstruct_curves(
-        per_frame,
-        camera,
-        config,
-        planes,
-        scale,
-        Some(background.image()),
-    )?;
     let frames_skipped = skipped.count();
     if frames_skipped > 0 {
         tracing::warn!(
@@ -453,9 +454,38 @@ pub fn reconstruct_files(
             frames.len()
         );
     }
-    rec.report.frames_skipped = frames_skipped;
-    rec.report.seconds.background_s = background_s;
-    rec.report.seconds.extract_s = extract_s;
+    Ok(Extracted {
+        per_frame,
+        background,
+        frames_skipped,
+        background_s,
+        extract_s: t.elapsed().as_secs_f64(),
+    })
+}
+
+/// Runs the whole offline pipeline over a recording: [`extract_frames`], then the
+/// stages shared with the daemon ([`reconstruct_curves`]).
+pub fn reconstruct_files(
+    frames: &FrameSource,
+    background: Option<&Path>,
+    camera: &Camera,
+    config: &Config,
+    planes: PlaneSource<'_>,
+    scale: &ScaleMode,
+    progress: &dyn Progress,
+) -> Result<Reconstruction, ReconstructError> {
+    let extracted = extract_frames(frames, background, camera, config, progress)?;
+    let mut rec = reconstruct_curves(
+        extracted.per_frame,
+        camera,
+        config,
+        planes,
+        scale,
+        Some(extracted.background.image()),
+    )?;
+    rec.report.frames_skipped = extracted.frames_skipped;
+    rec.report.seconds.background_s = extracted.background_s;
+    rec.report.seconds.extract_s = extracted.extract_s;
     Ok(rec)
 }
 
