@@ -84,6 +84,11 @@ fn main() -> anyhow::Result<()> {
             );
         }
         eprintln!("oracle spreads {:?}", oracle.estimate.spreads);
+        eprintln!(
+            "scores: self {:.1}, oracle {:.1}",
+            solve::choose::score(&ev, &cal.estimate, &p),
+            solve::choose::score(&ev, &oracle.estimate, &p)
+        );
         // Where the two differ: each crossing's Cauchy cost (at its own estimate's
         // spreads, scale 3), summed per pose of its first plane, in blocks of 10 frames.
         let cauchy = |x: f32| {
@@ -138,6 +143,44 @@ fn main() -> anyhow::Result<()> {
         ev.crossings.len(),
         cal.summary.alternatives
     );
+    {
+        // How far the estimate is a common shift of the truth: v_est ≈ s v_true + w.
+        let mut a = nalgebra::Matrix4::<f64>::zeros();
+        let mut b = nalgebra::Vector4::<f64>::zeros();
+        let mut pairs = Vec::new();
+        for i in 0..ev.planes.len() {
+            if let Some(v) = cal.plane(i) {
+                let l = est.focal_scale;
+                let ve = V3::new(v.x * l, v.y * l, v.z);
+                let vt = truth_plane(i);
+                let wgt = 1.0 / ve.norm_squared().max(1e-300);
+                for k in 0..3 {
+                    let mut row = nalgebra::Vector4::<f64>::zeros();
+                    row[0] = vt[k];
+                    row[1 + k] = 1.0;
+                    a += row * row.transpose() * wgt;
+                    b += row * ve[k] * wgt;
+                }
+                pairs.push((ve, vt));
+            }
+        }
+        if let Some(x) = a.cholesky().map(|c| c.solve(&b)) {
+            let w = V3::new(x[1], x[2], x[3]);
+            let res: Vec<f64> = pairs
+                .iter()
+                .map(|(ve, vt)| (ve - vt * x[0] - w).norm() / ve.norm())
+                .collect();
+            let norms: Vec<f64> = pairs.iter().map(|(ve, _)| ve.norm()).collect();
+            println!(
+                "as a shift of the truth: s {:.4}, |w| {:.4} of a median |v| {:.4}; \
+                 median residual {:.4} of |v|",
+                x[0],
+                w.norm(),
+                median(norms),
+                median(res)
+            );
+        }
+    }
     if std::env::var("TURNS").is_ok_and(|v| v == "1") {
         // Per frame, each laser's turn from the truth (degrees), as one line per 10.
         let by_pose = ev.planes_of_poses();

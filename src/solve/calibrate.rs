@@ -20,6 +20,8 @@
 use nalgebra::Vector3;
 use serde::Serialize;
 
+use super::choose::{best_of, least_cost, score};
+pub use super::choose::{Alternative, AMBIGUOUS_CHI2};
 use super::conditional::{self, AnchorSplit};
 use super::estimate::{self, Estimate, EstimateParams, Spreads, Start};
 use super::evidence::{CrossingClass, Evidence, Observation, Ray};
@@ -61,24 +63,6 @@ pub struct CalibrationSummary {
     /// scan whose crosses fix `w` poorly has more than one.
     pub alternatives: Vec<Alternative>,
 }
-
-/// A second solution of the self-calibration and how it compares with the one output
-/// (one whose depths lie within three of the output's own median deviations of the
-/// output's is the same solution, found twice, and not reported).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct Alternative {
-    /// Its cost minus the output's, both under the output's spreads (χ² units).
-    pub delta_chi2: f64,
-    /// Median relative difference of its depths from the output's at the crossings.
-    pub median_depth_difference: f64,
-    /// Whether it fits about as well: `delta_chi2` under the 99 % point of χ² with three
-    /// degrees of freedom (those of the shift).
-    pub ambiguous: bool,
-}
-
-/// The 99 % point of χ² with three degrees of freedom: two solutions whose costs differ
-/// by less are not told apart by the evidence.
-pub const AMBIGUOUS_CHI2: f64 = 11.34;
 
 /// Largest number of minima of the orthogonality cost refined jointly.
 const MAX_CANDIDATES: usize = 3;
@@ -297,42 +281,19 @@ pub fn calibrate_from(
     // poses fitted against them after.
     let split = AnchorSplit::of(evidence);
     let sub = &split.evidence;
-    // The linear start sees every crossing (those of the other frames with the anchors
-    // too): among the anchors alone a sparse scan's crossings may be too few for its
-    // global subset.
-    let (start, planes) = match given {
-        Some(planes) => (super::Solution::empty(), split.planes_of(planes)),
-        None => match linear_start(evidence, params) {
-            Ok((start, planes)) => (start, split.planes_of(&planes)),
-            // Nothing for the null space to stand on (a table top, a standing hand in a
-            // plain room): start from the hand's centre instead.
-            Err(e @ (SolveError::TooFewPlanes { .. } | SolveError::TooFewCrosses { .. })) => {
-                match super::centre::fixed_centre_start(sub) {
-                    Some((planes, rms)) => {
-                        tracing::info!(
-                            "the linear start found nothing to stand on ({e}); started from \
-                             one centre of the hand instead (crosses {:.2}° from orthogonal)",
-                            rms.asin().to_degrees()
-                        );
-                        (super::Solution::empty(), planes)
-                    }
-                    None => return Err(e),
-                }
-            }
-            Err(e) => return Err(e),
-        },
-    };
-    // The crossings' spread to start from: the linear start's, or a tenth of a pixel.
-    let sigma_px = if start.sigma_img > 0.0 {
-        (start.sigma_img * evidence.focal_px).max(1e-3)
-    } else {
-        0.1
-    };
     let eparams = EstimateParams {
         estimate_focal: params.estimate_focal,
         ..EstimateParams::default()
     };
-    let mut estimates = refine_starts(sub, &planes, start.focal_scale, sigma_px, &eparams)?;
+    let (start, planes, mut estimates) = match given {
+        Some(planes) => {
+            let planes = split.planes_of(&extended(evidence, planes));
+            let estimates = refine_starts(sub, &planes, 1.0, 0.1, &eparams)?;
+            (super::Solution::empty(), planes, estimates)
+        }
+        None => two_starts(evidence, &split, params, &eparams)?,
+    };
+    let sigma_px = start_spread_px(&start, evidence);
     if params.estimate_focal && given.is_none() {
         let made_at = start.focal_scale;
         restart_at_found_focal(
@@ -346,6 +307,7 @@ pub fn calibrate_from(
     }
     let (est, alternatives) = best_of(sub, estimates, &eparams)
         .ok_or(SolveError::Degenerate("no start for the joint estimate"))?;
+    let est = super::folds::reseed_folds(sub, est, &eparams);
     let focal_scale_std = params
         .estimate_focal
         .then(|| est.marginals.first().map(|m| m[(6, 6)].max(0.0).sqrt()))
@@ -379,6 +341,111 @@ pub fn calibrate_from(
         verdicts,
         summary,
     })
+}
+
+/// `given` with each plane it lacks fitted to its crossings with the planes it has: each
+/// such crossing fixes the inverse depth there, `v · r = v_given · r` (robust linear
+/// least squares, as a pose fitted against the anchors starts:
+/// [`conditional::linear_plane`]), in passes while planes are gained. A warm start (the
+/// daemon's last epoch) lacks the frames that came since; their poses would otherwise be
+/// carried on from the last two known ones, and 16 frames on, a sweep's aim has turned
+/// far enough that the estimate started there ended at 8-125 px (an epoch test, once
+/// the first solve took longer than before).
+fn extended(evidence: &Evidence, given: &[Option<V3>]) -> Vec<Option<V3>> {
+    let mut planes = given.to_vec();
+    loop {
+        let mut rows: Vec<Vec<(V3, f64)>> = vec![Vec::new(); planes.len()];
+        for c in &evidence.crossings {
+            let r = V3::new(c.u[0], c.u[1], 1.0);
+            for (me, other) in [(c.a, c.b), (c.b, c.a)] {
+                if let (None, Some(v)) = (planes[me as usize], planes[other as usize]) {
+                    rows[me as usize].push((r, v.dot(&r)));
+                }
+            }
+        }
+        let found: Vec<(usize, V3)> = rows
+            .iter()
+            .enumerate()
+            .filter_map(|(i, rows)| Some((i, conditional::linear_plane(rows)?)))
+            .collect();
+        if found.is_empty() {
+            return planes;
+        }
+        for (i, v) in found {
+            planes[i] = Some(v);
+        }
+    }
+}
+
+/// The crossings' spread to start from: the linear start's, or a tenth of a pixel.
+fn start_spread_px(start: &super::Solution, evidence: &Evidence) -> f64 {
+    if start.sigma_img > 0.0 {
+        (start.sigma_img * evidence.focal_px).max(1e-3)
+    } else {
+        0.1
+    }
+}
+
+/// The estimates from both starts of a scan: the linear start (the coplanarity null
+/// space; it sees every crossing, those of the other frames with the anchors too, since
+/// among the anchors alone a sparse scan's crossings may be too few for its global
+/// subset) and the fixed-centre start ([`super::centre`]: every plane through one centre
+/// of the hand), each refined at every shift its crosses leave open ([`refine_starts`]).
+/// Each start can settle a different part of a scan wrongly: the linear start extends
+/// planes from plane to plane, and a run of frames whose crossings barely turn them
+/// (stripes on one flat table, the other laser missing) drifts along the chain, which the
+/// joint estimate then keeps (a table top: 0.7 % of the points 4-10 % off, the cost 36 %
+/// above the truth's); the centre start knows nothing of a hand that walks. The
+/// estimator's [`score`] chooses among all. Also returns the linear start (empty when it
+/// failed) and its planes.
+fn two_starts(
+    evidence: &Evidence,
+    split: &AnchorSplit,
+    params: &SolveParams,
+    eparams: &EstimateParams,
+) -> Result<(super::Solution, Vec<Option<V3>>, Vec<Estimate>), SolveError> {
+    let sub = &split.evidence;
+    let (start, planes, linear_error) = match linear_start(evidence, params) {
+        Ok((start, planes)) => (start, split.planes_of(&planes), None),
+        // Nothing for the null space to stand on (a table top, a standing hand in a
+        // plain room): the centre start alone.
+        Err(e @ (SolveError::TooFewPlanes { .. } | SolveError::TooFewCrosses { .. })) => {
+            tracing::info!("the linear start found nothing to stand on ({e})");
+            (
+                super::Solution::empty(),
+                vec![None; sub.planes.len()],
+                Some(e),
+            )
+        }
+        Err(e) => return Err(e),
+    };
+    let sigma_px = start_spread_px(&start, evidence);
+    let mut estimates = Vec::new();
+    let mut failure = linear_error;
+    if failure.is_none() {
+        match refine_starts(sub, &planes, start.focal_scale, sigma_px, eparams) {
+            Ok(found) => estimates.extend(found),
+            Err(e) => failure = Some(e),
+        }
+    }
+    match super::centre::fixed_centre_start(sub) {
+        Some((centre_planes, rms)) => {
+            tracing::debug!(
+                "the centre start: crosses {:.2}° from orthogonal",
+                rms.asin().to_degrees()
+            );
+            match refine_starts(sub, &centre_planes, 1.0, sigma_px, eparams) {
+                Ok(found) => estimates.extend(found),
+                Err(e) => tracing::debug!("the centre start did not refine: {e}"),
+            }
+        }
+        None => tracing::debug!("no centre start"),
+    }
+    match (estimates.is_empty(), failure) {
+        (true, Some(e)) => Err(e),
+        (true, None) => Err(SolveError::Degenerate("no start for the joint estimate")),
+        (false, _) => Ok((start, planes, estimates)),
+    }
 }
 
 /// With the focal scale estimated: while the joint estimate of least cost moves the focal
@@ -466,8 +533,8 @@ fn refine_starts(
         match estimate::estimate(sub, &start, &params_here) {
             Ok(mut est) => {
                 normalise_scale(sub, &mut est);
-                if let (Some(first), Some(base)) = (estimates.first(), first_cost) {
-                    let delta = estimate::cost_at(sub, &est, &first.spreads, eparams) - base;
+                if let (Some(_), Some(base)) = (estimates.first(), first_cost) {
+                    let delta = score(sub, &est, eparams) - base;
                     tracing::debug!(lambda, found = est.focal_scale, delta, "a further start");
                     if delta < AMBIGUOUS_CHI2 {
                         // It competes: measure its own spreads too.
@@ -483,7 +550,7 @@ fn refine_starts(
                     }
                 }
                 if first_cost.is_none() {
-                    let cost = estimate::cost_at(sub, &est, &est.spreads, eparams);
+                    let cost = score(sub, &est, eparams);
                     tracing::debug!(lambda, found = est.focal_scale, cost, "the first start");
                     first_cost = Some(cost);
                 }
@@ -531,88 +598,9 @@ fn shift_candidates(evidence: &Evidence, planes: &[Option<V3>]) -> Vec<V3> {
     out
 }
 
-/// The estimate of least cost among `estimates` (under the spreads of the first, then
-/// of the winner), and how each other one compares with it.
-pub(crate) fn best_of(
-    evidence: &Evidence,
-    mut estimates: Vec<Estimate>,
-    params: &EstimateParams,
-) -> Option<(Estimate, Vec<Alternative>)> {
-    let k = least_cost(evidence, &estimates, params)?;
-    let best = estimates.swap_remove(k);
-    let base = estimate::cost_at(evidence, &best, &best.spreads, params);
-    // The same solution, found twice: its depths within the estimate's own deviation.
-    let same = 3.0 * median_crossing_sigma(evidence, &best);
-    let mut alternatives: Vec<Alternative> = estimates
-        .iter()
-        .filter(|e| depth_difference(evidence, &best, e) > same)
-        .map(|e| {
-            let delta_chi2 = estimate::cost_at(evidence, e, &best.spreads, params) - base;
-            Alternative {
-                delta_chi2,
-                median_depth_difference: depth_difference(evidence, &best, e),
-                ambiguous: delta_chi2 < AMBIGUOUS_CHI2,
-            }
-        })
-        .collect();
-    alternatives.sort_by(|a, b| a.delta_chi2.total_cmp(&b.delta_chi2));
-    Some((best, alternatives))
-}
-
-/// The index of the estimate of least cost, all under the spreads of the first.
-fn least_cost(
-    evidence: &Evidence,
-    estimates: &[Estimate],
-    params: &EstimateParams,
-) -> Option<usize> {
-    let first_spreads = estimates.first()?.spreads;
-    let costs: Vec<f64> = estimates
-        .iter()
-        .map(|e| estimate::cost_at(evidence, e, &first_spreads, params))
-        .collect();
-    (0..estimates.len()).min_by(|&a, &b| costs[a].total_cmp(&costs[b]))
-}
-
-/// The median relative depth deviation that `est` gives the crossings (each on its first
-/// plane).
-fn median_crossing_sigma(evidence: &Evidence, est: &Estimate) -> f64 {
-    let sigmas: Vec<f64> = evidence
-        .crossings
-        .iter()
-        .step_by(7)
-        .filter_map(|c| {
-            let slot = evidence.planes[c.a as usize];
-            let ray = evidence.rays.ray(c.u, est.focal_scale)?;
-            let s = est.depth_sigma(slot.pose as usize, usize::from(slot.laser), &ray);
-            s.is_finite().then_some(s)
-        })
-        .collect();
-    super::median(sigmas).unwrap_or(0.0)
-}
-
-/// Median relative difference of the depths two estimates give at the crossings (each
-/// crossing on its first plane, both at their own scale normalisation).
-fn depth_difference(evidence: &Evidence, a: &Estimate, b: &Estimate) -> f64 {
-    let diffs: Vec<f64> = evidence
-        .crossings
-        .iter()
-        .filter_map(|c| {
-            let slot = evidence.planes[c.a as usize];
-            let depth = |e: &Estimate| {
-                let v = e.poses[slot.pose as usize].plane(usize::from(slot.laser))?;
-                let ray = evidence.rays.ray(c.u, e.focal_scale)?;
-                Some(v.dot(&ray.r))
-            };
-            let (da, db) = (depth(a)?, depth(b)?);
-            Some((da / db - 1.0).abs())
-        })
-        .collect();
-    super::median(diffs).unwrap_or(f64::INFINITY)
-}
-
 /// Rescales the centres (and their covariance, and the centre spread) so that the median
 /// inverse depth at the crossings is 1.
-fn normalise_scale(evidence: &Evidence, est: &mut Estimate) {
+pub(super) fn normalise_scale(evidence: &Evidence, est: &mut Estimate) {
     let lambda = est.focal_scale;
     let inverse_depths: Vec<f64> = evidence
         .crossings

@@ -279,7 +279,7 @@ fn minimise_at(
 
 /// The plane `v` (`v · r = 1/Z`) that the inverse depths `rho` at `rays` give by
 /// reweighted least squares; `None` when they do not fix it.
-fn linear_plane(rows: &[(V3, f64)]) -> Option<V3> {
+pub(super) fn linear_plane(rows: &[(V3, f64)]) -> Option<V3> {
     if rows.len() < 3 {
         return None;
     }

@@ -926,6 +926,35 @@ fn scatter_information(
     (blocks, counts)
 }
 
+/// The residuals of an estimate by kind, in their own units: crossings strong and faint
+/// (pixels), the components of the centre's second differences (length per frame², in
+/// the estimate's scale), the aim's and the roll's (radians per frame²).
+pub fn residuals_by_kind(
+    evidence: &Evidence,
+    estimate: &Estimate,
+    params: &EstimateParams,
+) -> [Vec<f64>; 5] {
+    let layout = Layout::new(evidence, params);
+    let state = State {
+        poses: estimate.poses.clone(),
+        focal_scale: estimate.focal_scale,
+    };
+    let rays = layout.rays(state.focal_scale);
+    let mut out: [Vec<f64>; 5] = Default::default();
+    for k in 0..evidence.crossings.len() {
+        if let Some(t) = layout.crossing(&state, k, &rays) {
+            out[evidence.crossings[k].class as usize].push(t.e);
+        }
+    }
+    for t in &layout.triples {
+        let (c, r) = layout.motion_terms(&state, t);
+        out[2].extend(c.r.iter().copied());
+        out[3].extend([r.r.x, r.r.y]);
+        out[4].push(r.r.z);
+    }
+    out
+}
+
 /// The robust cost of an estimate's poses and focal scale under other `spreads`, so
 /// that two estimates of one scan can be compared on one scale.
 pub fn cost_at(
@@ -934,10 +963,27 @@ pub fn cost_at(
     spreads: &Spreads,
     params: &EstimateParams,
 ) -> f64 {
+    cost_of(
+        evidence,
+        &estimate.poses,
+        estimate.focal_scale,
+        spreads,
+        params,
+    )
+}
+
+/// The robust cost of `poses` and `focal_scale` under `spreads`.
+pub fn cost_of(
+    evidence: &Evidence,
+    poses: &[CrossPose],
+    focal_scale: f64,
+    spreads: &Spreads,
+    params: &EstimateParams,
+) -> f64 {
     let layout = Layout::new(evidence, params);
     let state = State {
-        poses: estimate.poses.clone(),
-        focal_scale: estimate.focal_scale,
+        poses: poses.to_vec(),
+        focal_scale,
     };
     layout.cost(&state, spreads)
 }

@@ -129,7 +129,7 @@ pub fn poses_from_planes(
 
 /// The pose a fraction `t` of the way from `a` to `b` (beyond them for `t` outside
 /// `[0, 1]`): the rotation along the geodesic, the centre along the line.
-fn interpolate(a: &CrossPose, b: &CrossPose, t: f64) -> CrossPose {
+pub(super) fn interpolate(a: &CrossPose, b: &CrossPose, t: f64) -> CrossPose {
     let step = log_rotation(&(b.rotation * a.rotation.transpose())) * t;
     let mut pose = CrossPose {
         rotation: nalgebra::Rotation3::new(step).into_inner() * a.rotation,

@@ -40,10 +40,12 @@
 
 pub mod calibrate;
 pub mod centre;
+pub mod choose;
 pub mod conditional;
 pub mod estimate;
 pub mod evidence;
 pub mod extend;
+mod folds;
 pub mod init;
 pub mod nullspace;
 pub mod ortho;
