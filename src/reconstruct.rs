@@ -25,6 +25,7 @@ use streamed::{check_video_size, video_image};
 
 mod streamed;
 
+use crate::pipeline::PipelineError;
 pub use crate::pipeline::{
     reconstruct_curves, PlaneSource, ReconstructReport, Reconstruction, StageTimes, REPORT_VERSION,
 };
@@ -474,19 +475,31 @@ pub fn reconstruct_files(
     scale: &ScaleMode,
     progress: &dyn Progress,
 ) -> Result<Reconstruction, ReconstructError> {
-    let extracted = extract_frames(frames, background, camera, config, progress)?;
-    let mut rec = reconstruct_curves(
-        extracted.per_frame,
+    let mut extracted = extract_frames(frames, background, camera, config, progress)?;
+    let per_frame = std::mem::take(&mut extracted.per_frame);
+    let with_extraction = |report: &mut ReconstructReport| {
+        report.frames_skipped = extracted.frames_skipped;
+        report.seconds.background_s = extracted.background_s;
+        report.seconds.extract_s = extracted.extract_s;
+    };
+    match reconstruct_curves(
+        per_frame,
         camera,
         config,
         planes,
         scale,
         Some(extracted.background.image()),
-    )?;
-    rec.report.frames_skipped = extracted.frames_skipped;
-    rec.report.seconds.background_s = extracted.background_s;
-    rec.report.seconds.extract_s = extracted.extract_s;
-    Ok(rec)
+    ) {
+        Ok(mut rec) => {
+            with_extraction(&mut rec.report);
+            Ok(rec)
+        }
+        Err(PipelineError::Refused { reason, mut report }) => {
+            with_extraction(&mut report);
+            Err(PipelineError::Refused { reason, report }.into())
+        }
+        Err(e) => Err(e.into()),
+    }
 }
 
 #[cfg(test)]

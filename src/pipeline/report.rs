@@ -20,6 +20,7 @@
 //! | `points`, `triangulation` | the cloud, and what the other checks left out |
 //! | `seconds` | time per stage |
 //! | `warnings` | why the result is doubtful, as logged (empty when nothing is) |
+//! | `refused` | why no cloud was written although the planes were solved (the crossing check failed; `points` is then 0), or `null` |
 
 use nalgebra::Vector3;
 use serde::Serialize;
@@ -73,6 +74,7 @@ pub struct ReconstructReport {
     pub triangulation: TriangulateStats,
     pub seconds: StageTimes,
     pub warnings: Vec<String>,
+    pub refused: Option<String>,
 }
 
 /// A finished reconstruction.
@@ -127,6 +129,7 @@ pub(crate) fn assemble(
         triangulation: out.stats,
         seconds,
         warnings: Vec::new(),
+        refused: None,
     };
     Reconstruction {
         planes: out.planes.iter().map(|p| p.map(|v| v / factor)).collect(),

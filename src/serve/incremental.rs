@@ -6,8 +6,10 @@
 //!   curves (and an anchor's with every curve) are found and refined.
 //! - An epoch is the estimator's answer on the evidence so far:
 //!   [`crate::solve::calibrate_from`] on the scan's evidence, on a background thread
-//!   named `solver-epoch`, warm-started from the last epoch's planes, and the offline
-//!   triangulation of every plane it determines (the same uncertainty rule). The first
+//!   named `solver-epoch`, warm-started from the last epoch's planes (the frames since
+//!   placed by their crossings with those), and the offline triangulation of every
+//!   plane it determines (the same uncertainty rule, and the same crossing check: an
+//!   epoch whose planes most curves contradict is not adopted). The first
 //!   is tried once `min_planes_first_solve` planes have arrived, the next whenever the
 //!   planes have grown by `solve_growth`; a failed one is retried at the same growth.
 //! - Between epochs no points go out: a frame's points come with the next epoch. (The
@@ -242,6 +244,16 @@ impl Incremental {
             &self.config,
             self.colour.as_deref(),
         );
+        // The offline pipeline's check: planes that most curves contradict give no
+        // cloud, and no epoch.
+        if let Some(reason) = pipeline::refusal(&out.stats) {
+            self.counts.failed_global_solves += 1;
+            tracing::info!(
+                planes = pending.plane_index.len(),
+                "epoch not adopted: {reason}"
+            );
+            return None;
+        }
         let factor = cloud::scale_for(&self.scale, &out.cloud, &out.pixels).unwrap_or(1.0);
         let mut cloud = out.cloud;
         cloud::apply_scale(&mut cloud, factor);

@@ -1418,6 +1418,13 @@ fn finish(
         Err(e) => {
             let msg = anyhow_like(&e);
             tracing::warn!("final solve: {msg}; writing an empty cloud");
+            // A refused cloud still has the report of what the solve found.
+            let report = match e {
+                crate::reconstruct::ReconstructError::Pipeline(
+                    crate::pipeline::PipelineError::Refused { report, .. },
+                ) => Some(*report),
+                _ => None,
+            };
             (
                 crate::ply::Cloud {
                     colors: Some(Vec::new()),
@@ -1425,7 +1432,7 @@ fn finish(
                     lasers: Some(Vec::new()),
                     ..Default::default()
                 },
-                None,
+                report,
                 Some(msg),
             )
         }

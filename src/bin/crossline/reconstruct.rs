@@ -7,7 +7,10 @@ use std::process::ExitCode;
 use anyhow::{bail, Context};
 use crossline::cloud::ScaleMode;
 use crossline::config::Config;
-use crossline::reconstruct::{self, PlaneSource, Reconstruction};
+use crossline::pipeline::PipelineError;
+use crossline::reconstruct::{
+    self, PlaneSource, ReconstructError, ReconstructReport, Reconstruction,
+};
 use nalgebra::Vector3;
 
 /// Recover every laser plane with no knowledge of the projector, and triangulate a
@@ -122,8 +125,19 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         source,
         &scale,
         &|_stage: &str, done: usize, _total: usize| bar.set_position(done as u64),
-    )?;
+    );
     bar.finish_and_clear();
+    let rec = match rec {
+        Ok(rec) => rec,
+        // No cloud, but the report of what the solve found.
+        Err(ReconstructError::Pipeline(PipelineError::Refused { reason, report })) => {
+            if let Some(path) = &args.report {
+                write_report(&report, path)?;
+            }
+            bail!("{reason}");
+        }
+        Err(e) => return Err(e.into()),
+    };
     let meta = scan_meta(&args.input, &args.camera, &camera, &rec);
     write_outputs_with(&rec, &args.out, args.report.as_deref(), &meta)?;
     print_summary(&rec);
@@ -267,11 +281,15 @@ pub fn write_outputs_with(
     };
     written.with_context(|| format!("writing the cloud to {}", out.display()))?;
     if let Some(path) = report {
-        let json = serde_json::to_string_pretty(&rec.report)?;
-        std::fs::write(path, json + "\n")
-            .with_context(|| format!("writing the report to {}", path.display()))?;
+        write_report(&rec.report, path)?;
     }
     Ok(())
+}
+
+fn write_report(report: &ReconstructReport, path: &Path) -> anyhow::Result<()> {
+    let json = serde_json::to_string_pretty(report)?;
+    std::fs::write(path, json + "\n")
+        .with_context(|| format!("writing the report to {}", path.display()))
 }
 
 pub fn print_summary(rec: &Reconstruction) {
