@@ -17,12 +17,12 @@ type V3 = Vector3<f64>;
 /// run of consecutive poses turns together, up to tens of degrees, held there by the
 /// motion terms at the run's two ends (generality seed 9: frames 181-184 75° off, their
 /// neighbours right). Such a run shows as kinks in the hand's path: second differences
-/// of the centre, aim or roll beyond [`FOLD_SPREADS`] of their measured spreads. Each
-/// run (kinks closer than [`FOLD_GAP_FRAMES`] joined, the largest first, at most
-/// [`MAX_FOLDS`]) is started again from the poses its two neighbours give
-/// (interpolated between them) and the whole scan minimised again; the estimate that
-/// explains the evidence better ([`score`]) stays. A kink that is the hand's own (a jerk)
-/// leaves the estimate as it was, at the cost of one minimisation.
+/// of the centre, aim or roll beyond [`FOLD_SPREADS`] of their measured spreads, at both
+/// of its ends ([`MIN_FOLD_SPAN`]). Each run (kinks closer than [`FOLD_GAP_FRAMES`]
+/// joined, the largest first, at most [`MAX_FOLDS`]) is started again from the poses its
+/// two neighbours give (interpolated between them) and the whole scan minimised again;
+/// the estimate that explains the evidence better ([`score`]) stays. A run the hand
+/// really made leaves the estimate as it was, at the cost of one minimisation.
 pub(super) fn reseed_folds(
     evidence: &Evidence,
     mut est: Estimate,
@@ -77,6 +77,12 @@ const FOLD_SPREADS: f64 = 6.0;
 const FOLD_GAP_FRAMES: u32 = 12;
 /// Folded runs started again at most.
 const MAX_FOLDS: usize = 4;
+/// Least span (poses) of a run's kinks for it to be a fold: poses `a..=b` turned
+/// together bend the path at both ends, the triples `a−2, a−1` and `b−1, b`, which span
+/// `b − a + 5` poses, six or more for a run of two; one pose out of line (the hand's own
+/// jerk, a roll jitter) bends three triples, five poses, and is left alone (seen on room
+/// seed 121: four such runs started again, none kept, 10 s spent).
+const MIN_FOLD_SPAN: usize = 6;
 
 /// The folded runs of `est` (see [`reseed_folds`]), as first and last pose, the run with
 /// the largest kink first.
@@ -110,6 +116,7 @@ fn folds(evidence: &Evidence, est: &Estimate, params: &EstimateParams) -> Vec<(u
             _ => runs.push((first, last, k)),
         }
     }
+    runs.retain(|&(first, last, _)| last + 1 - first >= MIN_FOLD_SPAN);
     runs.sort_by(|a, b| b.2.total_cmp(&a.2));
     runs.into_iter()
         .take(MAX_FOLDS)
