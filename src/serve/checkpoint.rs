@@ -428,6 +428,62 @@ impl CheckpointWriter {
     }
 }
 
+/// The checkpoint as a running scan keeps it: a write that fails stops the checkpoint,
+/// not the scan. The curves are in memory and the final cloud needs nothing of the
+/// checkpoint; only a resume after a crash loses what was not written. A failed write
+/// used to end the solver thread while the extraction workers waited for ever to hand
+/// it their frames: the daemon hung without a word, ignored SIGTERM and wrote no cloud
+/// (a background checkpoint that found no descriptor left, or its directory deleted).
+pub struct Checkpoint {
+    writer: CheckpointWriter,
+    /// The first write that failed; nothing is written after it.
+    error: Option<String>,
+}
+
+impl Checkpoint {
+    pub fn new(writer: CheckpointWriter) -> Self {
+        Self {
+            writer,
+            error: None,
+        }
+    }
+
+    /// Why the checkpoint stopped, if it did.
+    pub fn error(&self) -> Option<&str> {
+        self.error.as_deref()
+    }
+
+    pub fn append(&mut self, frame: &FrameCurves) {
+        if self.error.is_none() {
+            let result = self.writer.append(frame);
+            self.keep(result);
+        }
+    }
+
+    pub fn sync(&mut self) {
+        if self.error.is_none() {
+            let result = self.writer.sync();
+            self.keep(result);
+        }
+    }
+
+    pub fn save_background(&mut self, dir: &Path, image: &RgbImage) {
+        if self.error.is_none() {
+            self.keep(CheckpointWriter::save_background(dir, image));
+        }
+    }
+
+    fn keep(&mut self, result: Result<(), CheckpointError>) {
+        if let Err(e) = result {
+            tracing::error!(
+                "{e}: the checkpoint stops here; the scan goes on and its cloud will be \
+                 written, but a crash from now on cannot be resumed"
+            );
+            self.error = Some(e.to_string());
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

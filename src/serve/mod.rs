@@ -52,7 +52,7 @@ use crate::config::Config;
 use crate::extract::{Background, Curve, Extractor};
 use crate::ring::{self, FrameMeta, Recv, Slot};
 
-use checkpoint::{CheckpointWriter, FrameCurves};
+use checkpoint::{Checkpoint, CheckpointWriter, FrameCurves};
 use incremental::{Incremental, IncrementalParams, SolverCounts};
 use status::{DeviceState, Status};
 use stream::EpochReason;
@@ -249,6 +249,8 @@ pub struct ServeReport {
     pub wall_seconds: f64,
     /// Why capture stopped early (a damaged recording, a failed device), if it did.
     pub capture_error: Option<String>,
+    /// Why the checkpoint stopped during the scan (the scan went on), if it did.
+    pub checkpoint_error: Option<String>,
     pub reconstruction: Option<crate::reconstruct::ReconstructReport>,
     pub solve_error: Option<String>,
 }
@@ -678,12 +680,12 @@ pub fn run(
     if let Some(bg) = &resumed.background {
         solver.set_colour_source(Arc::new(bg.clone()));
     }
-    let mut checkpoint = CheckpointWriter::open(
+    let mut checkpoint = Checkpoint::new(CheckpointWriter::open(
         &scan.state,
         header.width,
         header.height,
         seconds(cfg.checkpoint_interval_s, 0.05, 86_400.0),
-    )?;
+    )?);
     // Replay the checkpointed frames into the solver (no sending: nobody listens yet).
     let mut start_position = 0;
     for f in resumed.frames {
@@ -877,10 +879,12 @@ pub fn run(
                 })?;
         }
 
-        // Solver, on this thread.
-        let result = solver_loop(
+        // Solver, on this thread. It owns the results' receiver: should it end early,
+        // the workers' sends fail and they end too, instead of waiting for ever.
+        let results = result_rx;
+        solver_loop(
             &mut solver,
-            &result_rx,
+            &results,
             &mut checkpoint,
             &scan,
             &warmup,
@@ -889,19 +893,18 @@ pub fn run(
             &shared,
             resumed_frames,
         );
+        drop(results);
         workers_stop.store(true, Ordering::Relaxed);
-        let outcome = result.and_then(|()| {
-            reserve.release();
-            finish(
-                &mut solver,
-                &mut checkpoint,
-                &scan,
-                &hub,
-                &feed,
-                &shared,
-                &opts,
-            )
-        });
+        let outcome = finish(
+            &mut solver,
+            &mut checkpoint,
+            &mut reserve,
+            &scan,
+            &hub,
+            &feed,
+            &shared,
+            &opts,
+        );
         notifier.notify("STOPPING=1");
         net_stop.notify_one();
         web_stop.notify_one();
@@ -946,6 +949,7 @@ pub fn run(
         cpu_seconds: cpu_seconds() - cpu_start,
         wall_seconds: started.elapsed().as_secs_f64(),
         capture_error: lock(&capture_error).clone(),
+        checkpoint_error: checkpoint.error().map(str::to_string),
         reconstruction: rec,
         solve_error,
     };
@@ -1309,14 +1313,14 @@ fn worker_loop(
 fn solver_loop(
     solver: &mut Incremental,
     results: &Receiver<Extracted>,
-    checkpoint: &mut CheckpointWriter,
+    checkpoint: &mut Checkpoint,
     scan: &ScanFiles,
     warmup: &Warmup,
     hub: &net::Hub,
     feed: &net::StatusFeed,
     shared: &Shared,
     first_index: u64,
-) -> Result<(), ServeError> {
+) {
     let mut pending: BTreeMap<u64, Extracted> = BTreeMap::new();
     let mut next = first_index;
     let mut background_saved = false;
@@ -1346,7 +1350,7 @@ fn solver_loop(
             if !background_saved {
                 if let Some(bg) = warmup.background() {
                     if !scan.state.join("background.png").exists() {
-                        CheckpointWriter::save_background(&scan.state, bg.image())?;
+                        checkpoint.save_background(&scan.state, bg.image());
                     }
                     solver.set_colour_source(Arc::new(bg.image().clone()));
                     background_saved = true;
@@ -1361,7 +1365,7 @@ fn solver_loop(
                 sequence: e.meta.sequence,
                 timestamp_nanos: e.meta.timestamp_nanos,
                 curves: e.curves.clone(),
-            })?;
+            });
             let t = Instant::now();
             let out = solver.add_frame(e.curves, e.meta.received_nanos);
             if let Some((epoch, reason)) = out.epoch {
@@ -1388,8 +1392,7 @@ fn solver_loop(
             next += 1;
         }
     }
-    checkpoint.sync()?;
-    Ok(())
+    checkpoint.sync();
 }
 
 type Finished = (
@@ -1398,16 +1401,18 @@ type Finished = (
     Option<String>,
 );
 
+#[allow(clippy::too_many_arguments)]
 fn finish(
     solver: &mut Incremental,
-    checkpoint: &mut CheckpointWriter,
+    checkpoint: &mut Checkpoint,
+    reserve: &mut FdReserve,
     scan: &ScanFiles,
     hub: &net::Hub,
     feed: &net::StatusFeed,
     shared: &Shared,
     opts: &ServeOptions,
 ) -> Result<Finished, ServeError> {
-    checkpoint.sync()?;
+    checkpoint.sync();
     *lock(&shared.live_solver) = solver.counts;
     feed.publish(status::event_line(
         "final_solve",
@@ -1437,6 +1442,9 @@ fn finish(
             )
         }
     };
+    // The descriptors held back are released only now, for the cloud and the report:
+    // released before the final solve, clients waiting to be accepted took them.
+    reserve.release();
     if let Some(dir) = scan.cloud.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|source| ServeError::Io {
             what: "cannot create",

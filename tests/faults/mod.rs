@@ -262,3 +262,45 @@ fn the_unit_sets_a_descriptor_limit_above_the_clients_and_the_reserve() {
         "LimitNOFILE={limit}, clients and reserve {held}"
     );
 }
+
+/// The checkpoint's directory goes away mid-scan (deleted, or no descriptor left to
+/// write in it): the checkpoint stops, saying so, and the scan goes on to its cloud and
+/// report, which name the failure. It once ended the solver thread while the workers
+/// waited for ever to hand it their frames: no word, SIGTERM ignored, no cloud.
+#[test]
+fn a_checkpoint_that_cannot_be_written_does_not_stop_the_scan() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path();
+    let config = dir.join("c.toml");
+    // The longest warm-up there is, so that the background is checkpointed after the
+    // directory is gone.
+    std::fs::write(&config, "[background]\nmedian_frames = 31\n").expect("config");
+    let log = dir.join("serve.log");
+    let mut child = serve(dir, &dump(), "realtime")
+        .arg("--config")
+        .arg(&config)
+        .stderr(std::fs::File::create(&log).expect("log"))
+        .spawn()
+        .expect("spawn serve");
+    wait_for(&dir.join("cloud.sock"), Duration::from_secs(30));
+    let state = dir.join("out/state");
+    assert!(
+        !state.join("background.png").exists(),
+        "the background was checkpointed before the test could remove its directory"
+    );
+    std::fs::remove_dir_all(&state).expect("remove the checkpoint's directory");
+    let status = wait_exit(&mut child, Duration::from_secs(120));
+    let stderr = std::fs::read_to_string(&log).expect("log");
+    assert!(status.success(), "{status}: {stderr}");
+    assert!(stderr.contains("the checkpoint stops here"), "{stderr}");
+    let cloud = std::fs::metadata(dir.join("cloud.ply")).expect("the cloud is written");
+    assert!(cloud.len() > 10_000, "{} bytes", cloud.len());
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("report.json")).expect("the report is written"),
+    )
+    .expect("report JSON");
+    let why = report["checkpoint_error"]
+        .as_str()
+        .expect("checkpoint_error");
+    assert!(why.contains("background.png"), "{why}");
+}

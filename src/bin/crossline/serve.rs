@@ -225,6 +225,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(e) = &report.solve_error {
         eprintln!("crossline: warning: final solve: {e}");
     }
+    if let Some(e) = &report.checkpoint_error {
+        eprintln!(
+            "crossline: warning: the checkpoint stopped during the scan ({e}); the scan went on, but it could not have been resumed after a crash"
+        );
+    }
     if let Some(e) = &report.capture_error {
         eprintln!(
             "crossline: error: capture stopped early: {e} (the frames before it were processed and saved)"
