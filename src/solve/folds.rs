@@ -101,7 +101,7 @@ fn folds(evidence: &Evidence, est: &Estimate, params: &EstimateParams) -> Vec<(u
         .collect();
     let mut runs: Vec<(usize, usize, f64)> = Vec::new();
     for (t, &k) in kinks.iter().enumerate() {
-        if !(k > FOLD_SPREADS) {
+        if k.is_nan() || k <= FOLD_SPREADS {
             continue;
         }
         // The triple's three poses.
