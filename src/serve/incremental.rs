@@ -65,10 +65,19 @@ struct Epoch {
     plane_index: Vec<Option<u32>>,
 }
 
-/// A background solve: its answer, and the evidence's plane index.
+/// A background solve: its answer, and the evidence's plane index. Dropped (adopted,
+/// or superseded by the final solve), it stops the solve if still running: on a small
+/// machine the final solve must not share the CPU with an epoch nobody will read.
 struct Pending {
     answer: Receiver<Result<Calibration, SolveError>>,
     plane_index: Vec<Option<u32>>,
+    cancel: solve::Cancel,
+}
+
+impl Drop for Pending {
+    fn drop(&mut self) {
+        self.cancel.cancel();
+    }
 }
 
 /// Live counters for status.
@@ -190,18 +199,25 @@ impl Incremental {
             warm
         });
         let params = self.config.solve.clone();
+        let cancel = solve::Cancel::default();
+        let stop = cancel.clone();
         let (tx, rx) = bounded(1);
         let spawned = std::thread::Builder::new()
             .name("solver-epoch".into())
             .stack_size(super::WORKER_STACK_BYTES)
             .spawn(move || {
-                let _ = tx.send(solve::calibrate_from(&evidence, &params, warm.as_deref()));
+                let answer = solve::calibrate_until(&evidence, &params, warm.as_deref(), &stop);
+                if matches!(answer, Err(SolveError::Cancelled)) {
+                    tracing::debug!("an epoch's solve stopped: superseded");
+                }
+                let _ = tx.send(answer);
             });
         match spawned {
             Ok(_) => {
                 self.pending = Some(Pending {
                     answer: rx,
                     plane_index,
+                    cancel,
                 })
             }
             Err(e) => tracing::warn!("cannot start a background solve: {e}"),
@@ -217,7 +233,7 @@ impl Incremental {
             Err(TryRecvError::Empty) => return None,
             Err(TryRecvError::Disconnected) => Err(SolveError::Degenerate("solver thread died")),
         };
-        let pending = self.pending.take()?;
+        let mut pending = self.pending.take()?;
         self.counts.global_solves += 1;
         let calibration = match result {
             Ok(c) => c,
@@ -260,7 +276,7 @@ impl Incremental {
         self.counts.planes_solved = out.planes_with_points as u64;
         self.current = Some(Epoch {
             calibration: Arc::new(calibration),
-            plane_index: pending.plane_index,
+            plane_index: std::mem::take(&mut pending.plane_index),
         });
         let reason = if self.epoch == 0 {
             EpochReason::First
@@ -361,8 +377,10 @@ mod tests {
                 .collect();
             take(solver.add_frame(curves, 0));
         }
-        // The solve runs in the background; empty frames poll it.
-        for _ in 0..500 {
+        // The solve runs in the background; empty frames poll it (for as long as a loaded
+        // machine needs: this is no speed test).
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(300);
+        while std::time::Instant::now() < deadline {
             if take(solver.add_frame(Vec::new(), 0)) > 0 {
                 break;
             }
@@ -638,5 +656,41 @@ mod tests {
         assert!(live.cloud.len() > 10_000);
         assert_eq!(live.cloud.points, offline.cloud.points);
         assert_eq!(live.planes, offline.planes);
+    }
+
+    /// The final solve supersedes a running epoch's: that one is told to stop, so that
+    /// the two do not share the CPU (on a one-CPU machine the final cloud came minutes
+    /// late), and the final cloud is still made.
+    #[test]
+    fn the_final_solve_stops_an_epoch_still_running() {
+        let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+        let config = Config::default();
+        let (_, frames) = path_frames(&camera, &config);
+        let planes: usize = frames.iter().map(Vec::len).sum();
+        let mut solver = Incremental::new(
+            camera,
+            config,
+            IncrementalParams {
+                min_planes_first_solve: planes,
+                solve_growth: 10.0,
+            },
+            ScaleMode::Factor { factor: 1.0 },
+        );
+        for curves in frames {
+            solver.add_frame(curves, 0);
+        }
+        let running = solver
+            .pending
+            .as_ref()
+            .expect("a solve started")
+            .cancel
+            .clone();
+        assert!(!running.is_cancelled());
+        let rec = solver.finish().expect("final solve");
+        assert!(
+            running.is_cancelled(),
+            "the epoch's solve was not told to stop"
+        );
+        assert!(rec.cloud.len() > 10_000, "{} points", rec.cloud.len());
     }
 }

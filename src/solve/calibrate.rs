@@ -267,6 +267,17 @@ pub fn calibrate_from(
     params: &SolveParams,
     given: Option<&[Option<V3>]>,
 ) -> Result<Calibration, SolveError> {
+    calibrate_until(evidence, params, given, &super::Cancel::default())
+}
+
+/// [`calibrate_from`], stopped with [`SolveError::Cancelled`] once `cancel` is set (the
+/// daemon's epochs, superseded by its final solve).
+pub fn calibrate_until(
+    evidence: &Evidence,
+    params: &SolveParams,
+    given: Option<&[Option<V3>]>,
+    cancel: &super::Cancel,
+) -> Result<Calibration, SolveError> {
     evidence.validate().map_err(SolveError::InvalidProblem)?;
     if let Some(planes) = given {
         if planes.len() != evidence.planes.len() {
@@ -283,12 +294,13 @@ pub fn calibrate_from(
     let sub = &split.evidence;
     let eparams = EstimateParams {
         estimate_focal: params.estimate_focal,
+        cancel: cancel.clone(),
         ..EstimateParams::default()
     };
     let (start, planes, mut estimates) = match given {
         Some(planes) => {
             let planes = split.planes_of(&extended(evidence, planes));
-            let estimates = refine_starts(sub, &planes, 1.0, 0.1, &eparams)?;
+            let estimates = refine_starts(sub, &planes, 1.0, 0.1, &eparams, None)?;
             (super::Solution::empty(), planes, estimates)
         }
         None => two_starts(evidence, &split, params, &eparams)?,
@@ -305,9 +317,11 @@ pub fn calibrate_from(
             &mut estimates,
         );
     }
+    cancel.check()?;
     let (est, alternatives) = best_of(sub, estimates, &eparams)
         .ok_or(SolveError::Degenerate("no start for the joint estimate"))?;
     let est = super::folds::reseed_folds(sub, est, &eparams);
+    cancel.check()?;
     let focal_scale_std = params
         .estimate_focal
         .then(|| est.marginals.first().map(|m| m[(6, 6)].max(0.0).sqrt()))
@@ -386,6 +400,9 @@ fn start_spread_px(start: &super::Solution, evidence: &Evidence) -> f64 {
     }
 }
 
+/// The linear start (empty when it failed), its planes, and the estimates of both starts.
+type Starts = (super::Solution, Vec<Option<V3>>, Vec<Estimate>);
+
 /// The estimates from both starts of a scan: the linear start (the coplanarity null
 /// space; it sees every crossing, those of the other frames with the anchors too, since
 /// among the anchors alone a sparse scan's crossings may be too few for its global
@@ -403,7 +420,7 @@ fn two_starts(
     split: &AnchorSplit,
     params: &SolveParams,
     eparams: &EstimateParams,
-) -> Result<(super::Solution, Vec<Option<V3>>, Vec<Estimate>), SolveError> {
+) -> Result<Starts, SolveError> {
     let sub = &split.evidence;
     let (start, planes, linear_error) = match linear_start(evidence, params) {
         Ok((start, planes)) => (start, split.planes_of(&planes), None),
@@ -423,18 +440,23 @@ fn two_starts(
     let mut estimates = Vec::new();
     let mut failure = linear_error;
     if failure.is_none() {
-        match refine_starts(sub, &planes, start.focal_scale, sigma_px, eparams) {
+        match refine_starts(sub, &planes, start.focal_scale, sigma_px, eparams, None) {
             Ok(found) => estimates.extend(found),
             Err(e) => failure = Some(e),
         }
     }
-    match super::centre::fixed_centre_start(sub) {
+    match super::centre::fixed_centre_start(sub, &eparams.cancel) {
         Some((centre_planes, rms)) => {
             tracing::debug!(
                 "the centre start: crosses {:.2}° from orthogonal",
                 rms.asin().to_degrees()
             );
-            match refine_starts(sub, &centre_planes, 1.0, sigma_px, eparams) {
+            // Measured against the linear start's best estimate, where there is one.
+            let rival = least_cost(sub, &estimates, eparams).map(|k| Rival {
+                spreads: estimates[k].spreads,
+                score: score(sub, &estimates[k], eparams),
+            });
+            match refine_starts(sub, &centre_planes, 1.0, sigma_px, eparams, rival) {
                 Ok(found) => estimates.extend(found),
                 Err(e) => tracing::debug!("the centre start did not refine: {e}"),
             }
@@ -486,7 +508,7 @@ fn restart_at_found_focal(
             }
         };
         made_at = found;
-        match refine_starts(&split.evidence, &planes, found, sigma_px, eparams) {
+        match refine_starts(&split.evidence, &planes, found, sigma_px, eparams, None) {
             Ok(more) => estimates.extend(more),
             Err(e) => {
                 tracing::debug!("the start at the focal scale found did not refine: {e}");
@@ -496,26 +518,37 @@ fn restart_at_found_focal(
     }
 }
 
+/// An estimate already made, which further starts are measured against: its spreads
+/// and its [`score`].
+#[derive(Clone, Copy)]
+struct Rival {
+    spreads: Spreads,
+    score: f64,
+}
+
 /// The global search over the shift: every minimum of the orthogonality cost of the
 /// start's crosses (`planes` at focal scale `lambda`), refined jointly; the start's own
 /// first, with the spreads measured, the others under its spreads, and fully only where
-/// they compete with it.
+/// they compete with it. Given a `rival` (another start's estimate), every one is
+/// refined under the rival's spreads first, and fully only where it competes with the
+/// rival: the second start of a scan costs a round where it lands in a worse basin.
 fn refine_starts(
     sub: &Evidence,
     planes: &[Option<V3>],
     lambda: f64,
     sigma_px: f64,
     eparams: &EstimateParams,
+    rival: Option<Rival>,
 ) -> Result<Vec<Estimate>, SolveError> {
     let mut estimates: Vec<Estimate> = Vec::new();
-    // The first estimate's cost under its own spreads, once it exists.
-    let mut first_cost = None;
+    // What each further estimate competes with, once it exists.
+    let mut first_cost = rival;
     for w in shift_candidates(sub, planes) {
         let shifted: Vec<Option<V3>> = planes.iter().map(|p| p.map(|v| v + w)).collect();
         let Some((poses, _)) = init::poses_from_planes(sub, &shifted) else {
             continue;
         };
-        let (spreads, params_here) = match estimates.first() {
+        let (spreads, params_here) = match first_cost {
             None => (init::start_spreads(sub, &poses, sigma_px), eparams.clone()),
             Some(first) => (
                 first.spreads,
@@ -533,8 +566,8 @@ fn refine_starts(
         match estimate::estimate(sub, &start, &params_here) {
             Ok(mut est) => {
                 normalise_scale(sub, &mut est);
-                if let (Some(_), Some(base)) = (estimates.first(), first_cost) {
-                    let delta = score(sub, &est, eparams) - base;
+                if let Some(base) = first_cost {
+                    let delta = score(sub, &est, eparams) - base.score;
                     tracing::debug!(lambda, found = est.focal_scale, delta, "a further start");
                     if delta < AMBIGUOUS_CHI2 {
                         // It competes: measure its own spreads too.
@@ -552,7 +585,10 @@ fn refine_starts(
                 if first_cost.is_none() {
                     let cost = score(sub, &est, eparams);
                     tracing::debug!(lambda, found = est.focal_scale, cost, "the first start");
-                    first_cost = Some(cost);
+                    first_cost = Some(Rival {
+                        spreads: est.spreads,
+                        score: cost,
+                    });
                 }
                 estimates.push(est);
             }

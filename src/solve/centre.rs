@@ -44,10 +44,15 @@ const SECOND_NULL_NOISE: f64 = 2.0;
 
 /// The planes (per plane of `evidence`, `v · r = 1/Z`) of the best fixed centre, and the
 /// RMS orthogonality (cosine) it leaves; `None` when no direction gives planes.
-pub fn fixed_centre_start(evidence: &Evidence) -> Option<(Vec<Option<V3>>, f64)> {
+/// Gives up (`None`) once `cancel` is set.
+pub fn fixed_centre_start(
+    evidence: &Evidence,
+    cancel: &super::Cancel,
+) -> Option<(Vec<Option<V3>>, f64)> {
     let sub = Sample::new(evidence, |f| f % SEARCH_FRAME_STEP == 0);
     let mut scored: Vec<(f64, V3)> = fibonacci(SEARCH_DIRECTIONS)
         .into_iter()
+        .take_while(|_| !cancel.is_cancelled())
         .filter_map(|c| sub.score(&c).map(|s| (s, c)))
         .collect();
     scored.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -57,6 +62,9 @@ pub fn fixed_centre_start(evidence: &Evidence) -> Option<(Vec<Option<V3>>, f64)>
     for entry in &mut scored {
         let mut step = step0;
         for _ in 0..REFINE_ROUNDS {
+            if cancel.is_cancelled() {
+                return None;
+            }
             for c in cap(&entry.1, step) {
                 if let Some(s) = sub.score(&c) {
                     if s < entry.0 {
@@ -348,7 +356,7 @@ mod tests {
             focal_px: 1000.0,
             rays: RayModel::default(),
         };
-        let (found, rms) = fixed_centre_start(&ev).expect("a start");
+        let (found, rms) = fixed_centre_start(&ev, &Default::default()).expect("a start");
         assert!(rms < 1e-3, "orthogonality {rms}");
         // The planes, up to the global scale, at the crossings.
         let ratios: Vec<f64> = ev

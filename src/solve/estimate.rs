@@ -60,6 +60,8 @@ pub struct EstimateParams {
     pub crossing_loss: f64,
     /// Huber threshold of the motion terms, in their spread.
     pub motion_loss: f64,
+    /// Stops the estimate between steps ([`SolveError::Cancelled`]).
+    pub cancel: super::Cancel,
 }
 
 impl Default for EstimateParams {
@@ -73,6 +75,7 @@ impl Default for EstimateParams {
             // would call good crossings wrong at the tails; a wider window keeps them.
             crossing_loss: 3.0,
             motion_loss: 2.0,
+            cancel: super::Cancel::default(),
         }
     }
 }
@@ -568,6 +571,9 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
     let mut current = layout.cost(&state, spreads);
     let mut last_decrease = f64::INFINITY;
     for _ in 0..layout.params.max_iterations {
+        if layout.params.cancel.is_cancelled() {
+            break;
+        }
         let (mut h, g, _) = layout.normal_equations(&state, spreads);
         let (_, gauge) = layout.gauge(&state, &layout.rays(state.focal_scale));
         regularise(&mut h, &gauge);
@@ -775,6 +781,7 @@ pub fn estimate(
     let mut round = 0;
     loop {
         let (s, c, steps) = minimise(&layout, state, &spreads);
+        params.cancel.check()?;
         state = s;
         cost = c;
         iterations += steps;

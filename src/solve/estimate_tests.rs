@@ -573,3 +573,22 @@ fn a_folded_run_is_started_again_from_its_neighbours() {
     assert!(after < 0.005, "still {after} rad off");
     assert!(super::choose::score(&ev, &again, &params) < score_before);
 }
+
+/// A solve whose caller has given it up stops with `Cancelled`, started from the linear
+/// start or warm; the same evidence, not cancelled, calibrates.
+#[test]
+fn a_cancelled_solve_stops_and_says_so() {
+    let scan = path_scan(&PathSpec::default());
+    let ev = evidence_of(&scan, 0.0, 1, |_, _| true);
+    let params = super::SolveParams::default();
+    let cancel = super::Cancel::default();
+    assert!(super::calibrate_until(&ev, &params, None, &cancel).is_ok());
+    cancel.cancel();
+    let warm: Vec<Option<V3>> = scan.flat_planes().into_iter().map(Some).collect();
+    for given in [None, Some(warm.as_slice())] {
+        match super::calibrate_until(&ev, &params, given, &cancel) {
+            Err(super::SolveError::Cancelled) => {}
+            other => panic!("expected Cancelled, got {:?}", other.map(|c| c.summary)),
+        }
+    }
+}

@@ -55,7 +55,7 @@ pub mod subset;
 pub mod synthetic;
 pub mod terms;
 
-pub use calibrate::{calibrate, calibrate_from, Calibration, PlaneVerdict};
+pub use calibrate::{calibrate, calibrate_from, calibrate_until, Calibration, PlaneVerdict};
 
 use crate::intersect::Crossing;
 use crate::rng::mix64;
@@ -103,6 +103,44 @@ pub enum SolveError {
     TooFewCrosses { found: usize, needed: usize },
     #[error("degenerate system: {0}")]
     Degenerate(&'static str),
+    /// The caller asked the solve to stop ([`Cancel`]): a live epoch superseded by the
+    /// final solve.
+    #[error("cancelled")]
+    Cancelled,
+}
+
+/// A request to stop a solve early, shared between the solve and its caller. The solve
+/// looks at it between estimator steps and between starts, and then returns
+/// [`SolveError::Cancelled`]: the daemon's final solve must not share the CPU with an
+/// epoch it supersedes.
+#[derive(Clone, Debug, Default)]
+pub struct Cancel(std::sync::Arc<std::sync::atomic::AtomicBool>);
+
+impl Cancel {
+    pub fn cancel(&self) {
+        self.0.store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    pub fn is_cancelled(&self) -> bool {
+        self.0.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// `Err(Cancelled)` once cancelled.
+    pub fn check(&self) -> Result<(), SolveError> {
+        if self.is_cancelled() {
+            Err(SolveError::Cancelled)
+        } else {
+            Ok(())
+        }
+    }
+}
+
+/// Not a setting: two parameter sets differ in what they compute, never in who may stop
+/// them.
+impl PartialEq for Cancel {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
 }
 
 /// Parameters of the plane solver.

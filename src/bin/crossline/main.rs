@@ -78,6 +78,7 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    faer::set_global_parallelism(faer::Par::Seq);
     init_logging(cli.verbose);
     let result = match cli.command {
         Command::Demo(args) => demo::run(args),
