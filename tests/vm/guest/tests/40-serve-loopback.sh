@@ -1,9 +1,12 @@
 # shellcheck shell=sh
+# vm-timeout: 600
 # The daemon end to end on a camera: crossline feed writes the simulated laser scan
 # into v4l2loopback; crossline serve captures it from the capture side exactly as
 # from a camera, records it, processes it and, on SIGTERM, writes its cloud. The host
 # check (tests/vm/host/40-serve-loopback.check.sh) compares the recording with the
 # fed frames and the cloud with `crossline reconstruct` of the same frames.
+# The final self-calibration of the 100 frames takes about 3 s natively and 270 s under
+# TCG (software floating point, one CPU; measured 2026-12-03), hence its vm-timeout.
 . /vm/lib.sh
 load_module v4l2loopback video_nr=11 exclusive_caps=0 card_label=crossline-serve
 wait_for_dev /dev/video11
