@@ -300,7 +300,7 @@ pub fn calibrate_until(
     let (start, planes, mut estimates) = match given {
         Some(planes) => {
             let planes = split.planes_of(&extended(evidence, planes));
-            let estimates = refine_starts(sub, &planes, 1.0, 0.1, &eparams, None)?;
+            let estimates = refine_starts(sub, &planes, 1.0, 0.1, &eparams)?;
             (super::Solution::empty(), planes, estimates)
         }
         None => two_starts(evidence, &split, params, &eparams)?,
@@ -440,7 +440,7 @@ fn two_starts(
     let mut estimates = Vec::new();
     let mut failure = linear_error;
     if failure.is_none() {
-        match refine_starts(sub, &planes, start.focal_scale, sigma_px, eparams, None) {
+        match refine_starts(sub, &planes, start.focal_scale, sigma_px, eparams) {
             Ok(found) => estimates.extend(found),
             Err(e) => failure = Some(e),
         }
@@ -451,12 +451,7 @@ fn two_starts(
                 "the centre start: crosses {:.2}° from orthogonal",
                 rms.asin().to_degrees()
             );
-            // Measured against the linear start's best estimate, where there is one.
-            let rival = least_cost(sub, &estimates, eparams).map(|k| Rival {
-                spreads: estimates[k].spreads,
-                score: score(sub, &estimates[k], eparams),
-            });
-            match refine_starts(sub, &centre_planes, 1.0, sigma_px, eparams, rival) {
+            match refine_starts(sub, &centre_planes, 1.0, sigma_px, eparams) {
                 Ok(found) => estimates.extend(found),
                 Err(e) => tracing::debug!("the centre start did not refine: {e}"),
             }
@@ -508,7 +503,7 @@ fn restart_at_found_focal(
             }
         };
         made_at = found;
-        match refine_starts(&split.evidence, &planes, found, sigma_px, eparams, None) {
+        match refine_starts(&split.evidence, &planes, found, sigma_px, eparams) {
             Ok(more) => estimates.extend(more),
             Err(e) => {
                 tracing::debug!("the start at the focal scale found did not refine: {e}");
@@ -518,37 +513,26 @@ fn restart_at_found_focal(
     }
 }
 
-/// An estimate already made, which further starts are measured against: its spreads
-/// and its [`score`].
-#[derive(Clone, Copy)]
-struct Rival {
-    spreads: Spreads,
-    score: f64,
-}
-
 /// The global search over the shift: every minimum of the orthogonality cost of the
 /// start's crosses (`planes` at focal scale `lambda`), refined jointly; the start's own
 /// first, with the spreads measured, the others under its spreads, and fully only where
-/// they compete with it. Given a `rival` (another start's estimate), every one is
-/// refined under the rival's spreads first, and fully only where it competes with the
-/// rival: the second start of a scan costs a round where it lands in a worse basin.
+/// they compete with it.
 fn refine_starts(
     sub: &Evidence,
     planes: &[Option<V3>],
     lambda: f64,
     sigma_px: f64,
     eparams: &EstimateParams,
-    rival: Option<Rival>,
 ) -> Result<Vec<Estimate>, SolveError> {
     let mut estimates: Vec<Estimate> = Vec::new();
-    // What each further estimate competes with, once it exists.
-    let mut first_cost = rival;
+    // The first estimate's cost under its own spreads, once it exists.
+    let mut first_cost = None;
     for w in shift_candidates(sub, planes) {
         let shifted: Vec<Option<V3>> = planes.iter().map(|p| p.map(|v| v + w)).collect();
         let Some((poses, _)) = init::poses_from_planes(sub, &shifted) else {
             continue;
         };
-        let (spreads, params_here) = match first_cost {
+        let (spreads, params_here) = match estimates.first() {
             None => (init::start_spreads(sub, &poses, sigma_px), eparams.clone()),
             Some(first) => (
                 first.spreads,
@@ -566,8 +550,8 @@ fn refine_starts(
         match estimate::estimate(sub, &start, &params_here) {
             Ok(mut est) => {
                 normalise_scale(sub, &mut est);
-                if let Some(base) = first_cost {
-                    let delta = score(sub, &est, eparams) - base.score;
+                if let (Some(_), Some(base)) = (estimates.first(), first_cost) {
+                    let delta = score(sub, &est, eparams) - base;
                     tracing::debug!(lambda, found = est.focal_scale, delta, "a further start");
                     if delta < AMBIGUOUS_CHI2 {
                         // It competes: measure its own spreads too.
@@ -585,10 +569,7 @@ fn refine_starts(
                 if first_cost.is_none() {
                     let cost = score(sub, &est, eparams);
                     tracing::debug!(lambda, found = est.focal_scale, cost, "the first start");
-                    first_cost = Some(Rival {
-                        spreads: est.spreads,
-                        score: cost,
-                    });
+                    first_cost = Some(cost);
                 }
                 estimates.push(est);
             }
