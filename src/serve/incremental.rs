@@ -5,7 +5,7 @@
 //! - Each new frame's curves go into the scan at once: their crossings with the anchors'
 //!   curves (and an anchor's with every curve) are found and refined.
 //! - An epoch is the estimator's answer on the evidence so far:
-//!   [`crate::solve::calibrate_from`] on the scan's evidence, on a background thread
+//!   [`crate::solve::calibrate_until`] on the scan's evidence, on a background thread
 //!   named `solver-epoch`, warm-started from the last epoch's planes (the frames since
 //!   placed by their crossings with those), and the offline triangulation of every
 //!   plane it determines (the same uncertainty rule, and the same crossing check: an
