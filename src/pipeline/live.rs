@@ -5,7 +5,7 @@
 use image::RgbImage;
 
 use super::triangulate::{self, CloudOut};
-use super::{Planes, Scan};
+use super::{Fit, Planes, Scan};
 use crate::camera::Camera;
 use crate::config::Config;
 use crate::solve::evidence::Evidence;
@@ -22,14 +22,16 @@ impl Scan {
 
     /// The cloud of the scan's planes that `calibration` (made on the evidence of the
     /// first `plane_index.len()` planes) determines, before scaling: the offline
-    /// triangulation with its crossing check and depth rule.
+    /// triangulation with its crossing check and depth rule; and the planes' fit against
+    /// the extraction's predicted precision, for [`super::refusal`].
     pub(crate) fn epoch_cloud(
         &self,
         calibration: &Calibration,
         plane_index: &[Option<u32>],
+        camera: &Camera,
         config: &Config,
         colour: Option<&RgbImage>,
-    ) -> CloudOut {
+    ) -> (CloudOut, Option<Fit>) {
         let mut index = plane_index.to_vec();
         index.resize(self.planes.len(), None);
         let planes = Planes::Calibrated {
@@ -38,6 +40,17 @@ impl Scan {
         };
         let curve_crossings = self.curve_crossings();
         let faint = self.faint_curves(config);
-        triangulate::cloud(self, &planes, &curve_crossings, &faint, colour, config)
+        let predicted =
+            self.predicted_crossing_px(&curve_crossings, &faint, config, camera.fx.max(camera.fy));
+        let fit = calibration
+            .summary
+            .spreads
+            .zip(predicted)
+            .map(|(s, predicted_px)| Fit {
+                fitted_px: s.crossing_px[0],
+                predicted_px,
+            });
+        let out = triangulate::cloud(self, &planes, &curve_crossings, &faint, colour, config);
+        (out, fit)
     }
 }

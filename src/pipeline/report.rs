@@ -20,6 +20,7 @@
 //! | `points`, `triangulation` | the cloud, and what the other checks left out |
 //! | `seconds` | time per stage |
 //! | `warnings` | why the result is doubtful, as logged (empty when nothing is) |
+//! | `crossing_precision_px` | the extraction's predicted precision of the strong crossings (pixels; median of each refined crossing's deviation from its two local fits), or `null` |
 //! | `refused` | why no cloud was written although the planes were solved (the crossing check failed; `points` is then 0), or `null` |
 
 use nalgebra::Vector3;
@@ -75,6 +76,9 @@ pub struct ReconstructReport {
     pub seconds: StageTimes,
     pub warnings: Vec<String>,
     pub refused: Option<String>,
+    /// The precision the extraction predicts for the strong crossings (pixels, median):
+    /// what the planes' fit (`calibration.spreads.crossing_px[0]`) is judged against.
+    pub crossing_precision_px: Option<f64>,
 }
 
 /// A finished reconstruction.
@@ -130,6 +134,7 @@ pub(crate) fn assemble(
         seconds,
         warnings: Vec::new(),
         refused: None,
+        crossing_precision_px: None,
     };
     Reconstruction {
         planes: out.planes.iter().map(|p| p.map(|v| v / factor)).collect(),

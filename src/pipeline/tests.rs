@@ -180,10 +180,43 @@ fn planes_most_curves_contradict_give_no_cloud() {
         inconsistent_points,
         ..Default::default()
     };
-    let wrong = super::refusal(&stats(12_782, 247_582)).expect("refused");
+    let wrong = super::refusal(&stats(12_782, 247_582), None).expect("refused");
     assert!(wrong.contains("247582 points"), "{wrong}");
     assert!(wrong.contains("no cloud is written"), "{wrong}");
-    assert_eq!(super::refusal(&stats(449_423, 77_947)), None);
+    assert_eq!(super::refusal(&stats(449_423, 77_947), None), None);
+}
+
+/// Planes that the crossings agree with but fit far worse than the extraction places
+/// the crossings give no cloud (seed 122 under another start: 0.295 px fitted where the
+/// curves give 0.0105 px); right planes, which fit within a few times the prediction,
+/// do.
+#[test]
+fn planes_that_fit_far_worse_than_the_curves_are_measured_give_no_cloud() {
+    let agreeing = crate::cloud::TriangulateStats {
+        kept: 274_151,
+        inconsistent_points: 20_000,
+        ..Default::default()
+    };
+    let fit = |fitted_px| super::Fit {
+        fitted_px,
+        predicted_px: 0.0105,
+    };
+    let wrong = super::refusal(&agreeing, Some(fit(0.295))).expect("refused");
+    assert!(wrong.contains("0.295 px"), "{wrong}");
+    assert!(wrong.contains("0.0105 px"), "{wrong}");
+    assert_eq!(super::refusal(&agreeing, Some(fit(0.0528))), None);
+    // Without a prediction (no refined crossings), only the crossing check judges.
+    let unknown = super::Fit {
+        fitted_px: 0.295,
+        predicted_px: 0.0,
+    };
+    assert_eq!(super::refusal(&agreeing, Some(unknown)), None);
+    // Noiseless curves are placed to rounding, which no fit matches: not a refusal.
+    let rounding = super::Fit {
+        fitted_px: 7e-12,
+        predicted_px: 1e-14,
+    };
+    assert_eq!(super::refusal(&agreeing, Some(rounding)), None);
 }
 
 /// With 15 anchors among 60 frames, the others are crossed with the anchors only and

@@ -254,15 +254,16 @@ impl Incremental {
             tracing::warn!(epoch = self.epoch + 1, "{warning}");
         }
         self.focal_uncertain = focal_warning.is_some();
-        let out = self.scan.epoch_cloud(
+        let (out, fit) = self.scan.epoch_cloud(
             &calibration,
             &pending.plane_index,
+            &self.camera,
             &self.config,
             self.colour.as_deref(),
         );
-        // The offline pipeline's check: planes that most curves contradict give no
-        // cloud, and no epoch.
-        if let Some(reason) = pipeline::refusal(&out.stats) {
+        // The offline pipeline's checks: planes that most curves contradict, or that fit
+        // the crossings far worse than the curves place them, give no cloud, and no epoch.
+        if let Some(reason) = pipeline::refusal(&out.stats, fit) {
             self.counts.failed_global_solves += 1;
             tracing::info!(
                 planes = pending.plane_index.len(),
