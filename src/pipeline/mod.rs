@@ -14,16 +14,19 @@
 //!    of one plane do not constrain it): an anchor's ([`anchors`]) with every earlier
 //!    curve, any other frame's with the anchors' curves and its own.
 //! 2. [`Scan::refine_crossings`]: crossings found on the simplified polylines move to the
-//!    curves' dense points.
+//!    curves' dense points, each with the precision its two local fits predict.
 //! 3. [`Scan::evidence`]: the crossings as the estimator sees them: crossings of two
 //!    strong ridges and those of a faint one, each kind weighed by its own measured spread.
 //! 4. [`crate::solve::calibrate`]: every pose of the projector and how well it is known.
 //! 5. [`triangulate::cloud`]: every point whose depth its plane determines to
 //!    `[triangulate] max_depth_sigma`, and that its crossings do not dispute.
+//! 6. [`refusal`]: no cloud from planes most curves contradict, or that fit the crossings
+//!    far worse than the extraction places them.
 
 pub mod anchors;
 mod live;
 pub mod planes;
+mod refusal;
 pub mod report;
 pub mod triangulate;
 
@@ -40,6 +43,8 @@ use crate::extract::Curve;
 use crate::intersect::{Crossing, SegmentIndex};
 use crate::solve::evidence::{CrossingClass, Evidence, Observation, PlaneSlot, RayModel};
 use crate::solve::{self, Calibration};
+
+pub(crate) use refusal::{refusal, Fit};
 
 pub(crate) use planes::PlaneCurves;
 pub use report::{ReconstructReport, Reconstruction, StageTimes, REPORT_VERSION};
@@ -571,76 +576,6 @@ fn doubts(calibration: Option<&solve::Calibration>) -> Vec<String> {
         ));
     }
     out
-}
-
-/// How well self-calibrated planes fit the strong crossings, against how well the
-/// extraction says they can be fitted.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct Fit {
-    /// The estimate's spread of the strong crossings' residuals, pixels.
-    pub fitted_px: f64,
-    /// The extraction's predicted precision of the same crossings, pixels
-    /// ([`Scan::predicted_crossing_px`]).
-    pub predicted_px: f64,
-}
-
-/// How many times the extraction's predicted crossing precision the planes' fit may be.
-/// The prediction comes from each crossing's two local fits ([`crate::intersect::
-/// refine_crossing`]) and reads low, since neighbouring ridge points share noise and the
-/// planes' model has its own errors (refraction, distortion). Measured with the right
-/// planes (the oracle of `benches/generality.sh`) on 27 random configurations of rooms,
-/// tables, clutter and water at turbidity up to 1.2: 1.5 to 5.0 times it, median 2.4. A
-/// wrong basin whose planes the crossing check cannot catch, since the crossings agree
-/// with them, fit held-out seed 122 at 28-35 times it. Twice the largest seen in right
-/// solutions: a fit past it is not extraction noise.
-pub(crate) const FIT_LIMIT: f64 = 10.0;
-
-/// The least crossing precision [`refusal`] credits the extraction with, pixels: curves
-/// drawn without noise (tests) are placed to rounding, which no fit matches; real ones
-/// are predicted at 0.004-0.03 px (the same 27 configurations).
-const PRECISION_FLOOR_PX: f64 = 1e-3;
-
-/// Why self-calibrated planes must not give a cloud, in words; `None` when they may.
-///
-/// 1. More points left out for disagreeing at crossings than kept. The estimator does
-///    not make this test of itself: the crossing check ([`crate::cloud::check_crossings`])
-///    compares the depths the planes give at every crossing of the cloud's curves, so
-///    when it leaves out more points than it keeps, the planes are not the ones the
-///    curves describe (a wrong basin), however well the estimate fits its own weights;
-///    what it keeps then lies on wrong planes too (generality seed 122: 12,782 points
-///    kept, every one on a plane over 2 % off). Right solutions on the generality bench
-///    lose at most 15 % of their points to it (turbid water); the wrong basins seen,
-///    80-95 %.
-/// 2. The planes fit the strong crossings more than [`FIT_LIMIT`] times worse than the
-///    extraction places them (`fit`): a wrong basin the crossings agree with, which the
-///    first test cannot see (seed 122 under another start: 97.5 % of 274,151 points on
-///    wrong planes, fitted at 0.30 px where the curves give 0.011 px).
-///
-/// Used by the daemon's epochs as well.
-pub(crate) fn refusal(stats: &cloud::TriangulateStats, fit: Option<Fit>) -> Option<String> {
-    const ADVICE: &str = "The report has the estimate. Give the focal length if it is \
-        known (without --estimate-focal), sweep the cross over more relief, or lower the \
-        laser power if the stripes saturate";
-    if stats.inconsistent_points > stats.kept {
-        return Some(format!(
-            "the self-calibration failed its check, so no cloud is written: the planes' \
-             depths disagree at the crossings of most curves ({} points left out for it, \
-             {} agreeing), so the planes are not the ones the curves describe. {ADVICE}",
-            stats.inconsistent_points, stats.kept
-        ));
-    }
-    let fit = fit.filter(|f| {
-        f.predicted_px > 0.0 && f.fitted_px > FIT_LIMIT * f.predicted_px.max(PRECISION_FLOOR_PX)
-    })?;
-    Some(format!(
-        "the self-calibration failed its check, so no cloud is written: the planes fit \
-         the crossings to {:.3} px where the curves place them to {:.4} px ({:.0} times; \
-         right planes fit within {FIT_LIMIT:.0}), so the planes are not the ones the \
-         curves describe. {ADVICE}",
-        fit.fitted_px,
-        fit.predicted_px,
-        fit.fitted_px / fit.predicted_px
-    ))
 }
 
 #[cfg(test)]
