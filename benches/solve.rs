@@ -3,7 +3,7 @@
 //! `cargo bench --bench solve`. The scans come from `crossline::solve::synthetic`: a
 //! room seen from inside, random hand-held crosses.
 
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, Criterion};
 use crossline::intersect::find_crossings;
 use crossline::solve::synthetic::{analytic_crossings, curve_polyline, random_scan, ScanSpec};
 use crossline::solve::{solve, Problem, SolveParams};
@@ -65,4 +65,14 @@ fn global_solve(c: &mut Criterion) {
 }
 
 criterion_group!(benches, crossing_search, global_solve);
-criterion_main!(benches);
+
+/// faer's dense kernels on one thread, as the `crossline` binary runs them: on these
+/// sizes its parallel kernels spend more time waking threads than computing, so the
+/// bench measures what users get.
+fn main() {
+    faer::set_global_parallelism(faer::Par::Seq);
+    benches();
+    criterion::Criterion::default()
+        .configure_from_args()
+        .final_summary();
+}
