@@ -66,9 +66,9 @@ pub(crate) fn refusal(stats: &cloud::TriangulateStats, fit: Option<Fit>) -> Opti
     })?;
     Some(format!(
         "the self-calibration failed its check, so no cloud is written: the planes fit \
-         the crossings to {:.3} px where the curves place them to {:.4} px ({:.0} times; \
-         right planes fit within {FIT_LIMIT:.0}), so the planes are not the ones the \
-         curves describe. {ADVICE}",
+         the crossings to {:.3} px where the curves place them to {:.4} px, {:.0} times \
+         worse (right planes fit within 5 times, and {FIT_LIMIT:.0} is the limit), so \
+         the planes are not the ones the curves describe. {ADVICE}",
         fit.fitted_px,
         fit.predicted_px,
         fit.fitted_px / fit.predicted_px
