@@ -42,14 +42,7 @@ impl Scan {
         let faint = self.faint_curves(config);
         let predicted =
             self.predicted_crossing_px(&curve_crossings, &faint, config, camera.fx.max(camera.fy));
-        let fit = calibration
-            .summary
-            .spreads
-            .zip(predicted)
-            .map(|(s, predicted_px)| Fit {
-                fitted_px: s.crossing_px[0],
-                predicted_px,
-            });
+        let fit = Fit::of(calibration, predicted);
         let out = triangulate::cloud(self, &planes, &curve_crossings, &faint, colour, config);
         (out, fit)
     }

@@ -513,13 +513,7 @@ pub fn reconstruct_scan(
     cloud::apply_scale(&mut out.cloud, factor);
     times.triangulate_s = t.elapsed().as_secs_f64();
     let calibration = calibration.as_ref();
-    let fit = calibration
-        .and_then(|c| c.summary.spreads)
-        .zip(predicted_px)
-        .map(|(s, predicted_px)| Fit {
-            fitted_px: s.crossing_px[0],
-            predicted_px,
-        });
+    let fit = calibration.and_then(|c| Fit::of(c, predicted_px));
     let refused = calibration.and_then(|_| refusal(&out.stats, fit));
     let warnings = doubts(calibration);
     for w in &warnings {

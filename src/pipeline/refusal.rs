@@ -16,6 +16,21 @@ pub(crate) struct Fit {
     pub predicted_px: f64,
 }
 
+impl Fit {
+    /// The fit of `calibration`'s planes to the strong crossings against `predicted_px`;
+    /// `None` without either.
+    pub fn of(calibration: &crate::solve::Calibration, predicted_px: Option<f64>) -> Option<Self> {
+        calibration
+            .summary
+            .spreads
+            .zip(predicted_px)
+            .map(|(s, predicted_px)| Self {
+                fitted_px: s.crossing_px[0],
+                predicted_px,
+            })
+    }
+}
+
 /// How many times the extraction's predicted crossing precision the planes' fit may be.
 /// The prediction comes from each crossing's two local fits ([`crate::intersect::
 /// refine_crossing`]) and reads low, since neighbouring ridge points share noise and the
