@@ -295,9 +295,12 @@ impl Scan {
         }
     }
 
-    /// The precision the extraction predicts for the estimator's strong crossings, pixels:
-    /// the median over them of each refined crossing's predicted deviation
-    /// ([`crate::intersect::refine_crossing`]). `None` without refined strong crossings.
+    /// The precision the extraction predicts for the strong crossings, pixels: the median
+    /// over the crossings above `solve.min_sin_angle` of class strong ([`Self::class_of`])
+    /// of each refined crossing's predicted deviation
+    /// ([`crate::intersect::refine_crossing`]). The estimator's evidence keeps only those
+    /// tied to an anchor of them; the prediction takes all, since it is a property of the
+    /// curves. `None` without refined strong crossings.
     fn predicted_crossing_px(
         &self,
         curve_crossings: &[cloud::CurveCrossing],

@@ -11,8 +11,8 @@ use crate::cloud;
 pub(crate) struct Fit {
     /// The estimate's spread of the strong crossings' residuals, pixels.
     pub fitted_px: f64,
-    /// The extraction's predicted precision of the same crossings, pixels
-    /// ([`Scan::predicted_crossing_px`]).
+    /// The extraction's predicted precision of the same crossings, pixels (the median
+    /// of their refinements' deviations, [`crate::intersect::RefinedCrossing::sigma`]).
     pub predicted_px: f64,
 }
 
