@@ -9,7 +9,9 @@
 //! Only pixels within 4σ are shaded: fan test, a shadow ray to the projector, Lambert
 //! incidence, inverse-square fall-off, albedo × texture.
 //!
-//! Under water: per-channel attenuation `exp(-c (|P - C| + |P|))`; forward scatter mixes
+//! Under water: attenuation `exp(-c (|P - C| + |P|))`, per channel for the ambient light
+//! and by the coefficient of its wavelength's channel for a laser (one wavelength: water
+//! and surface dim it, they do not change its hue); forward scatter mixes
 //! in a wider, dimmer copy of the same profile (blur `forward_blur_mrad`), so centres stay
 //! exact; backscatter adds glow where a camera ray crosses a sheet in front of its
 //! surface (`∝ 1/|cos|`, attenuated, clipped, its edge at the stripe's centre line as
@@ -90,6 +92,10 @@ struct LaserFrame {
     axis: V3,
     fan_dir: V3,
     colour: [f64; 3],
+    /// The channel the laser's wavelength falls in: its light is one wavelength, so the
+    /// surface reflects and the water attenuates all of it by that channel's factors,
+    /// and the camera's channels keep their fixed ratio (`colour`) to it.
+    main: usize,
     /// Under water: how far the sheet's light travels before it meets a surface, in
     /// `REACH_BINS` bins of `tan(angle in the fan)`; the water behind is dark.
     reach: Vec<f64>,
@@ -345,6 +351,7 @@ impl Simulator {
             axis: pose.axis,
             fan_dir: pose.fan_dirs[k],
             colour: self.laser_colour(k),
+            main: main_channel(self.colours[k]),
             reach: match self.water {
                 Some(_) => self.sheet_reach(&pose, k),
                 None => Vec::new(),
@@ -563,8 +570,9 @@ impl Simulator {
             profile += bloom * (-eb).exp();
         }
         let mut peak: f64 = 0.0;
+        let mono = fall * px.refl[l.main] as f64 * atten[l.main];
         for c in 0..3 {
-            let gain = fall * px.refl[c] as f64 * l.colour[c] * atten[c];
+            let gain = mono * l.colour[c];
             v[c] += gain * profile;
             peak = peak.max(gain * peak_profile);
         }
@@ -655,7 +663,7 @@ impl Simulator {
         let g = water.backscatter * (self.reference_distance / dist) * path / self.power;
         let tr = water.transmission(dist + lambda * range);
         for c in 0..3 {
-            v[c] += edge * (g * l.colour[c] * tr[c]).min(60.0);
+            v[c] += edge * (g * l.colour[c] * tr[l.main]).min(60.0);
         }
     }
 
@@ -773,6 +781,11 @@ impl Simulator {
             .collect();
         self.pixels = pixels;
     }
+}
+
+/// The channel a laser's light is in: the largest of its camera response.
+fn main_channel(colour: [f64; 3]) -> usize {
+    (0..3).fold(0, |m, c| if colour[c] > colour[m] { c } else { m })
 }
 
 fn jpeg_round_trip(img: &mut RgbImage, quality: u8) {

@@ -420,6 +420,39 @@ fn water_dims_red_and_adds_glow_in_front_of_surfaces() {
     assert!(count(&fw, &bw) > 3 * count(&fa, &ba));
 }
 
+/// A laser is one wavelength: water dims all of its light by that wavelength's
+/// coefficient, so its stripe keeps the hue it has in air however far it travels (with
+/// per-channel attenuation, a far red stripe turns yellow through its green crosstalk,
+/// which water passes 10 times better than red).
+#[test]
+fn water_dims_a_laser_without_changing_its_hue() {
+    let hue = |medium: Medium| {
+        let mut spec = stripe_scene("");
+        spec.projector.power = 1500.0;
+        spec.medium = medium;
+        let sim = Simulator::new(&spec, &quiet()).expect("sim");
+        let bg = sim.background().clone();
+        let mut ratios = Vec::new();
+        for i in 0..6 {
+            let (f, _) = sim.render_frame(i);
+            for (p, q) in f.pixels().zip(bg.pixels()) {
+                let d = [0, 1, 2].map(|c| p[c] as f64 - q[c] as f64);
+                if d[0] >= 40.0 && d[0] < 250.0 && d[0] > 3.0 * d[1] {
+                    ratios.push(d[1] / d[0]);
+                }
+            }
+        }
+        assert!(ratios.len() > 50, "{medium:?}: {} red pixels", ratios.len());
+        ratios.sort_by(f64::total_cmp);
+        ratios[ratios.len() / 2]
+    };
+    let (air, water) = (hue(Medium::Air), hue(Medium::Water));
+    assert!(
+        (water - air).abs() < 0.03,
+        "green / red of the red stripe: air {air:.3}, water {water:.3}"
+    );
+}
+
 #[test]
 fn sim_dir_round_trip() {
     let dir = tempfile::tempdir().expect("tmp");
