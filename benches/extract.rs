@@ -128,6 +128,37 @@ fn bench_extract(c: &mut Criterion) {
             plain.stats()
         );
     }
+    // No laser-off frame: the local background (an opening per channel) alone, and the
+    // whole extraction against it.
+    let mut opening = crossline::extract::local::LocalBackground::new(
+        crossline::extract::local::DEFAULT_RADIUS_PX,
+    );
+    let mut out = RgbImage::new(1, 1);
+    let best_opening = (0..30)
+        .map(|_| {
+            let t = std::time::Instant::now();
+            opening.estimate_into(std::hint::black_box(&frame), &mut out);
+            t.elapsed()
+        })
+        .min()
+        .unwrap_or_default();
+    let local = Background::local(W, H);
+    let local_curves = extractor.extract(&frame, &local);
+    let best_local = (0..30)
+        .map(|_| {
+            let t = std::time::Instant::now();
+            std::hint::black_box(extractor.extract(&frame, &local));
+            t.elapsed()
+        })
+        .min()
+        .unwrap_or_default();
+    println!(
+        "local background: opening best of 30 {:.2} ms; extraction against it {} curves, best of 30: {:.2} ms/frame, {:?}",
+        best_opening.as_secs_f64() * 1e3,
+        local_curves.len(),
+        best_local.as_secs_f64() * 1e3,
+        extractor.stats()
+    );
     // CPU time actually spent per frame (Linux), which contention does not inflate.
     if let Some(before) = thread_cpu_nanos() {
         let n = 60;

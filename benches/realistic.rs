@@ -6,7 +6,8 @@
 //! pixels within 1 px, the median and p90 sub-pixel error, the share of points more
 //! than 2 px from any stripe, and the time per frame on one core (scaled to 1080p by
 //! pixel count). `REALISTIC_SCANS` (default 12) and `REALISTIC_FRAMES` (default 3)
-//! set how many scans are drawn (seeds 1..; under water skipped) and frames of each.
+//! set how many scans are drawn (seeds 1..; under water skipped) and frames of each;
+//! `REALISTIC_POLICY` (one of the names below) runs that policy alone, for profiling.
 //! The policies: `laser-off` (the simulator's background), `local` (none given: the
 //! extractor's local background) and `black` (none given, as before the local one).
 
@@ -33,6 +34,7 @@ fn main() {
     let scans = env_usize("REALISTIC_SCANS", 12);
     let frames = env_usize("REALISTIC_FRAMES", 3);
     let policies = ["laser-off", "local", "black"];
+    let only = std::env::var("REALISTIC_POLICY").ok();
     let mut scores: Vec<Score> = policies.iter().map(|_| Score::default()).collect();
     let mut millis = vec![0.0f64; policies.len()];
     let mut megapixels = 0.0;
@@ -70,6 +72,9 @@ fn main() {
             sim.render_frame_into(index, &mut img, Some(&mut lit));
             megapixels += (cam.width * cam.height) as f64 / 1e6;
             for (k, bg) in [&off, &local, &black].into_iter().enumerate() {
+                if only.as_deref().is_some_and(|p| p != policies[k]) {
+                    continue;
+                }
                 let t = Instant::now();
                 let curves = extractor.extract(&img, bg);
                 millis[k] += t.elapsed().as_secs_f64() * 1e3;

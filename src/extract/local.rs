@@ -29,7 +29,7 @@ pub struct LocalBackground {
     radius: usize,
     a: Vec<u8>,
     b: Vec<u8>,
-    /// Prefix and suffix extremes of the van Herk passes.
+    /// Prefix and suffix extremes of the van Herk passes; padded rows of the row passes.
     g: Vec<u8>,
     h: Vec<u8>,
 }
@@ -53,47 +53,31 @@ impl LocalBackground {
         if out.dimensions() != frame.dimensions() {
             *out = RgbImage::new(frame.width(), frame.height());
         }
+        let r = self.radius;
         let n = 3 * w * h;
-        for v in [&mut self.a, &mut self.b, &mut self.g, &mut self.h] {
+        for v in [&mut self.a, &mut self.b] {
             v.resize(n, 0);
         }
-        let r = self.radius;
+        // The extremes of the column passes, and the padded rows of the row passes.
+        for v in [&mut self.g, &mut self.h] {
+            v.resize(n.max(3 * (w + 2 * r)), 0);
+        }
         let src: &[u8] = frame.as_raw();
-        // Erosion: rows into `a`, columns into `b`; dilation: rows into `a`, columns
-        // into the output.
-        rows_pass(
-            src,
-            &mut self.a,
-            (w, h),
-            r,
-            &mut self.g,
-            &mut self.h,
-            u8::min,
-        );
-        cols_pass(
-            &self.a,
-            &mut self.b,
-            (w, h),
-            r,
-            &mut self.g,
-            &mut self.h,
-            u8::min,
-        );
-        rows_pass(
-            &self.b,
-            &mut self.a,
-            (w, h),
-            r,
-            &mut self.g,
-            &mut self.h,
-            u8::max,
-        );
+        // A square window is a row window after a column window, for the minimum and
+        // the maximum alike.
+        let (a, b) = (&mut self.a, &mut self.b);
+        let (g, hs) = (&mut self.g, &mut self.h);
+        cols_pass(src, a, (w, h), r, g, hs, u8::min);
+        rows_pass(a, b, (w, h), r, (g, hs), u8::min, u8::MAX);
+        rows_pass(b, a, (w, h), r, (g, hs), u8::max, 0);
         let dst: &mut [u8] = out;
-        cols_pass(&self.a, dst, (w, h), r, &mut self.g, &mut self.h, u8::max);
+        cols_pass(a, dst, (w, h), r, g, hs, u8::max);
         let bias = noise_bias(src, dst);
-        for px in dst.chunks_exact_mut(3) {
-            for (v, b) in px.iter_mut().zip(bias) {
-                *v = v.saturating_add(b);
+        // The bias repeated over 16 pixels, so that the addition runs 48 bytes at a time.
+        let pattern: [u8; 48] = std::array::from_fn(|i| bias[i % 3]);
+        for chunk in dst.chunks_mut(48) {
+            for (v, b) in chunk.iter_mut().zip(&pattern) {
+                *v = v.saturating_add(*b);
             }
         }
     }
@@ -127,54 +111,53 @@ fn noise_bias(frame: &[u8], opening: &[u8]) -> [u8; 3] {
     })
 }
 
-/// The running extreme (`op`, the window clipped at the borders) over `2r + 1` samples
-/// along each row of each channel: van Herk / Gil–Werman, with blocks of `2r + 1`.
-#[allow(clippy::too_many_arguments)]
-fn rows_pass(
+/// The running extreme (`op`, the window clipped at the borders) over `2r + 1` pixels
+/// along each row, per channel, by doubling: the extreme over `2s` pixels is that of two
+/// windows of `s`, so `log₂(2r + 1)` passes give a window of `s ≤ 2r + 1`, and two such
+/// windows overlapping cover `2r + 1` exactly. Each pass is one shifted comparison of a
+/// whole row, which vectorises; the row is padded with `identity` (what `op` ignores)
+/// for the border.
+fn rows_pass<F: Fn(u8, u8) -> u8 + Copy>(
     src: &[u8],
     dst: &mut [u8],
-    (w, h): (usize, usize),
+    (w, _h): (usize, usize),
     r: usize,
-    g: &mut [u8],
-    hs: &mut [u8],
-    op: fn(u8, u8) -> u8,
+    (p, q): (&mut [u8], &mut [u8]),
+    op: F,
+    identity: u8,
 ) {
-    let k = 2 * r + 1;
+    let len = 2 * r + 1;
     let stride = 3 * w;
-    for y in 0..h {
-        let row = &src[y * stride..(y + 1) * stride];
-        let out = &mut dst[y * stride..(y + 1) * stride];
-        let (g, hs) = (&mut g[..stride], &mut hs[..stride]);
-        for c in 0..3 {
-            // Prefix extremes from each block start, suffix extremes to each block end.
-            for x in 0..w {
-                let v = row[3 * x + c];
-                g[3 * x + c] = if x % k == 0 {
-                    v
-                } else {
-                    op(g[3 * (x - 1) + c], v)
-                };
+    let padded = 3 * (w + 2 * r);
+    let (mut p, mut q) = (&mut p[..padded], &mut q[..padded]);
+    for (row, out) in src.chunks_exact(stride).zip(dst.chunks_exact_mut(stride)) {
+        p[..3 * r].fill(identity);
+        p[3 * r..3 * r + stride].copy_from_slice(row);
+        p[3 * r + stride..].fill(identity);
+        // `p[3x + c]` holds the extreme over pixels `x .. x + s` of the padded row.
+        let mut s = 1;
+        while 2 * s <= len {
+            let shift = 3 * s;
+            for ((o, a), b) in q[..padded - shift]
+                .iter_mut()
+                .zip(&p[..padded - shift])
+                .zip(&p[shift..])
+            {
+                *o = op(*a, *b);
             }
-            for x in (0..w).rev() {
-                let v = row[3 * x + c];
-                hs[3 * x + c] = if x % k == k - 1 || x == w - 1 {
-                    v
-                } else {
-                    op(hs[3 * (x + 1) + c], v)
-                };
-            }
-            for x in 0..w {
-                out[3 * x + c] = if x < r {
-                    // The window starts in block 0 and ends in it (x + r < 2r + 1).
-                    g[3 * (x + r).min(w - 1) + c]
-                } else if x + r < w {
-                    op(hs[3 * (x - r) + c], g[3 * (x + r) + c])
-                } else if (x - r) / k == (w - 1) / k {
-                    hs[3 * (x - r) + c]
-                } else {
-                    op(hs[3 * (x - r) + c], g[3 * (w - 1) + c])
-                };
-            }
+            q[padded - shift..].copy_from_slice(&p[padded - shift..]);
+            std::mem::swap(&mut p, &mut q);
+            s *= 2;
+        }
+        // Original pixel x's window is padded pixels x .. x + 2r: the windows of `s`
+        // starting at x and at x + len − s.
+        let shift = 3 * (len - s);
+        for ((o, a), b) in out
+            .iter_mut()
+            .zip(&p[..stride])
+            .zip(&p[shift..shift + stride])
+        {
+            *o = op(*a, *b);
         }
     }
 }
@@ -183,16 +166,18 @@ fn row_of(v: &[u8], i: usize, stride: usize) -> &[u8] {
     &v[i * stride..(i + 1) * stride]
 }
 
-/// As [`rows_pass`] down the columns: whole rows at a time, so the extremes vectorise.
+/// The running extreme (`op`, the window clipped at the borders) over `2r + 1` samples
+/// down each column of each channel: van Herk / Gil–Werman, with blocks of `2r + 1`,
+/// whole rows at a time, so the extremes vectorise.
 #[allow(clippy::too_many_arguments)]
-fn cols_pass(
+fn cols_pass<F: Fn(u8, u8) -> u8 + Copy>(
     src: &[u8],
     dst: &mut [u8],
     (w, h): (usize, usize),
     r: usize,
     g: &mut [u8],
     hs: &mut [u8],
-    op: fn(u8, u8) -> u8,
+    op: F,
 ) {
     let k = 2 * r + 1;
     let stride = 3 * w;
@@ -222,8 +207,8 @@ fn cols_pass(
     }
     for y in 0..h {
         let out = &mut dst[y * stride..(y + 1) * stride];
-        // As in `rows_pass`: a window that starts before the top lies in block 0; one
-        // that ends past the bottom may lie in the last block alone.
+        // A window that starts before the top lies in block 0 (y + r < 2r + 1); one that
+        // ends past the bottom may lie in the last block alone.
         let (left, right) = if y < r {
             (None, row_of(g, (y + r).min(h - 1), stride))
         } else if y + r < h {
@@ -280,7 +265,7 @@ mod tests {
             };
             image::Rgb([base + stripe, base, (base / 2) + (x as u8)])
         });
-        for r in [1, 2, 4] {
+        for r in [1, 2, 3, 4, 8] {
             let mut lb = LocalBackground::new(r);
             let mut out = RgbImage::new(1, 1);
             lb.estimate_into(&img, &mut out);
