@@ -571,9 +571,9 @@ impl Simulator {
         }
         let mut peak: f64 = 0.0;
         let mono = fall * px.refl[l.main] as f64 * atten[l.main];
-        for c in 0..3 {
-            let gain = mono * l.colour[c];
-            v[c] += gain * profile;
+        for (vc, colour) in v.iter_mut().zip(l.colour) {
+            let gain = mono * colour;
+            *vc += gain * profile;
             peak = peak.max(gain * peak_profile);
         }
         if d2 < 0.25 * g2 {
@@ -662,8 +662,8 @@ impl Simulator {
         let path = (range / np.abs()).min(6.0);
         let g = water.backscatter * (self.reference_distance / dist) * path / self.power;
         let tr = water.transmission(dist + lambda * range);
-        for c in 0..3 {
-            v[c] += edge * (g * l.colour[c] * tr[l.main]).min(60.0);
+        for (vc, colour) in v.iter_mut().zip(l.colour) {
+            *vc += edge * (g * colour * tr[l.main]).min(60.0);
         }
     }
 
