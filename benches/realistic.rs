@@ -7,7 +7,8 @@
 //! than 2 px from any stripe, and the time per frame on one core (scaled to 1080p by
 //! pixel count). `REALISTIC_SCANS` (default 12) and `REALISTIC_FRAMES` (default 3)
 //! set how many scans are drawn (seeds 1..; under water skipped) and frames of each;
-//! `REALISTIC_POLICY` (one of the names below) runs that policy alone, for profiling.
+//! `REALISTIC_POLICY` (one of the names below) runs that policy alone, for profiling;
+//! `REALISTIC_DUMP=DIR` writes each frame, its lit mask and its curves there.
 //! The policies: `laser-off` (the simulator's background), `local` (none given: the
 //! extractor's local background) and `black` (none given, as before the local one).
 
@@ -91,6 +92,42 @@ fn main() {
                     );
                 }
                 scores[k].add(&sim, index, &lit, min_contrast, &curves);
+                if let Some(dir) = std::env::var_os("REALISTIC_DUMP") {
+                    // The frame, its lit mask and the curves, to look at.
+                    let dir = std::path::Path::new(&dir);
+                    let stem = format!("{seed:03}-{index:03}");
+                    img.save(dir.join(format!("{stem}.png"))).ok();
+                    image::GrayImage::from_raw(cam.width, cam.height, lit.clone())
+                        .map(|m| m.save(dir.join(format!("{stem}-lit.png"))));
+                    let file = crossline::extract::CurvesFile::new(
+                        cam.width,
+                        cam.height,
+                        &params.lasers,
+                        curves.clone(),
+                    );
+                    let pose = sim.pose(index);
+                    let stray: Vec<String> = curves
+                        .iter()
+                        .flat_map(|c| c.points_px.iter().map(move |p| (c.laser, p)))
+                        .filter(|(_, p)| {
+                            let (x, y) = (p[0] as f64, p[1] as f64);
+                            (0..2)
+                                .filter_map(|j| sim.stripe_distance_px(&pose, j, x, y))
+                                .all(|e| e.abs() > 2.0)
+                        })
+                        .map(|(l, p)| format!("{l} {} {}", p[0], p[1]))
+                        .collect();
+                    std::fs::write(
+                        dir.join(format!("{stem}-{}-stray.txt", policies[k])),
+                        stray.join("\n"),
+                    )
+                    .ok();
+                    std::fs::write(
+                        dir.join(format!("{stem}-{}.json", policies[k])),
+                        file.to_json(),
+                    )
+                    .ok();
+                }
             }
         }
         eprintln!("scan {seed}: {}", drawn.summary);
