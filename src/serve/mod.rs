@@ -271,6 +271,8 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 /// The background, learnt from the first frames before any is extracted.
 struct Warmup {
     need: usize,
+    /// The frames' size, for a background made of none of them.
+    size: (u32, u32),
     state: Mutex<WarmState>,
     ready: Condvar,
 }
@@ -338,9 +340,13 @@ impl Warmup {
         let bg = match Background::median_of(&images) {
             Ok(b) => b,
             Err(e) => {
-                tracing::warn!("no background from the first frames ({e}); using black");
-                let (w, h) = images.first().map_or((1, 1), |i| i.dimensions());
-                Background::black(w, h)
+                // What `extract` does without a laser-off frame: each frame against its
+                // own local background (black would take every lit surface for laser).
+                tracing::warn!(
+                    "no background from the first frames ({e}); each frame is measured \
+                     against its own local background"
+                );
+                Background::local(self.size.0, self.size.1)
             }
         };
         let bg = Arc::new(bg);
@@ -662,6 +668,7 @@ pub fn run(
     let (result_tx, result_rx) = bounded::<Extracted>(2 * workers + 2);
     let warmup = Arc::new(Warmup {
         need: opts.config.background.median_frames.max(1),
+        size: (header.width, header.height),
         state: Mutex::new(WarmState::default()),
         ready: Condvar::new(),
     });
@@ -1506,6 +1513,28 @@ fn anyhow_like(e: &dyn std::error::Error) -> String {
 mod tests {
     use super::*;
     use crate::capture::dump::DumpReader;
+
+    #[test]
+    fn a_warm_up_of_undecodable_frames_falls_back_to_the_local_background() {
+        let warmup = Warmup {
+            need: 2,
+            size: (64, 48),
+            state: Mutex::new(WarmState::default()),
+            ready: Condvar::new(),
+        };
+        let meta = |index| FrameMeta {
+            index,
+            ..FrameMeta::default()
+        };
+        assert!(warmup.hold(meta(0), None).is_none());
+        let bg = warmup
+            .hold(meta(1), None)
+            .expect("a background once two are held");
+        assert!(bg.is_local());
+        assert_eq!(bg.image().dimensions(), (64, 48));
+        // Both frames wait in the backlog, to be extracted (and counted) as usual.
+        assert!(warmup.take_backlog().is_some() && warmup.take_backlog().is_some());
+    }
 
     #[test]
     fn a_loss_shorter_than_the_status_interval_still_gets_its_line() {
