@@ -222,7 +222,10 @@ fn a_replayed_video_keeps_the_container_timestamps_and_its_window() {
         assert!(ts.abs_diff(want) < 1_000_000, "frame {sequence} at {ts} ns");
     }
 
-    // And the daemon replays the same window, ending with its cloud.
+    // And the daemon replays a window from the same start, ending with its cloud: one
+    // and a half seconds, as the one second above holds too little of the sweep to
+    // self-calibrate (its fixed-centre start ends 33° from orthogonal, and nothing is
+    // triangulated: less, not wrong).
     let tmp = tempfile::tempdir().expect("tempdir");
     let dir = tmp.path();
     run_ok(
@@ -232,7 +235,7 @@ fn a_replayed_video_keeps_the_container_timestamps_and_its_window() {
             .arg(scan.camera())
             .arg("--replay")
             .arg(&scan.mp4)
-            .args(["--rate", "max", "--start", "0.5", "--duration", "1"])
+            .args(["--rate", "max", "--start", "0.5", "--duration", "1.5"])
             .arg("--out-dir")
             .arg(dir.join("out"))
             .arg("--out")
@@ -251,7 +254,7 @@ fn a_replayed_video_keeps_the_container_timestamps_and_its_window() {
             ]),
     );
     let report = json_file(&dir.join("report.json"));
-    assert_eq!(report["frames_processed"], FPS, "{report}");
+    assert_eq!(report["frames_processed"], 3 * FPS / 2, "{report}");
     assert!(read_ply(&dir.join("cloud.ply")).expect("cloud").len() > 1000);
 }
 
