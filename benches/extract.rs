@@ -78,26 +78,16 @@ fn bench_extract(c: &mut Criterion) {
         extractor.stats()
     );
     // The machine is shared: the best of many runs is the figure least disturbed.
-    let best = (0..60)
-        .map(|_| {
-            let t = std::time::Instant::now();
-            std::hint::black_box(extractor.extract(&frame, &background));
-            t.elapsed()
-        })
-        .min()
-        .unwrap_or_default();
+    let best = best_of(60, || {
+        std::hint::black_box(extractor.extract(&frame, &background));
+    });
     println!("best of 60: {:.2} ms/frame", best.as_secs_f64() * 1e3);
     // Wide stripes (FWHM 12 px) take the wide scales: the costliest case.
     let wide = render_with(true, 5.1, 3);
     let wide_curves = extractor.extract(&wide, &background);
-    let best_wide = (0..30)
-        .map(|_| {
-            let t = std::time::Instant::now();
-            std::hint::black_box(extractor.extract(&wide, &background));
-            t.elapsed()
-        })
-        .min()
-        .unwrap_or_default();
+    let best_wide = best_of(30, || {
+        std::hint::black_box(extractor.extract(&wide, &background));
+    });
     println!(
         "wide stripes (FWHM 12 px): {} curves, best of 30: {:.2} ms/frame, {:?}",
         wide_curves.len(),
@@ -114,14 +104,9 @@ fn bench_extract(c: &mut Criterion) {
     )
     .expect("extractor");
     for (name, img) in [("cross", &frame), ("wide stripes", &wide)] {
-        let best = (0..30)
-            .map(|_| {
-                let t = std::time::Instant::now();
-                std::hint::black_box(plain.extract(img, &background));
-                t.elapsed()
-            })
-            .min()
-            .unwrap_or_default();
+        let best = best_of(30, || {
+            std::hint::black_box(plain.extract(img, &background));
+        });
         println!(
             "{name} without faint activation: best of 30: {:.2} ms/frame, {:?}",
             best.as_secs_f64() * 1e3,
@@ -134,24 +119,14 @@ fn bench_extract(c: &mut Criterion) {
         crossline::extract::local::DEFAULT_RADIUS_PX,
     );
     let mut out = RgbImage::new(1, 1);
-    let best_opening = (0..30)
-        .map(|_| {
-            let t = std::time::Instant::now();
-            opening.estimate_into(std::hint::black_box(&frame), &mut out);
-            t.elapsed()
-        })
-        .min()
-        .unwrap_or_default();
+    let best_opening = best_of(30, || {
+        opening.estimate_into(std::hint::black_box(&frame), &mut out);
+    });
     let local = Background::local(W, H);
     let local_curves = extractor.extract(&frame, &local);
-    let best_local = (0..30)
-        .map(|_| {
-            let t = std::time::Instant::now();
-            std::hint::black_box(extractor.extract(&frame, &local));
-            t.elapsed()
-        })
-        .min()
-        .unwrap_or_default();
+    let best_local = best_of(30, || {
+        std::hint::black_box(extractor.extract(&frame, &local));
+    });
     println!(
         "local background: opening best of 30 {:.2} ms; extraction against it {} curves, best of 30: {:.2} ms/frame, {:?}",
         best_opening.as_secs_f64() * 1e3,
@@ -179,6 +154,18 @@ fn bench_extract(c: &mut Criterion) {
     c.bench_function("extract 1920x1080 textured, no laser", |b| {
         b.iter(|| extractor.extract(std::hint::black_box(&empty), &background))
     });
+}
+
+/// The shortest of `n` runs of `f`: on a shared machine, the figure least disturbed.
+fn best_of(n: usize, mut f: impl FnMut()) -> std::time::Duration {
+    (0..n)
+        .map(|_| {
+            let t = std::time::Instant::now();
+            f();
+            t.elapsed()
+        })
+        .min()
+        .unwrap_or_default()
 }
 
 /// Time this thread has run on a CPU, from `/proc/thread-self/schedstat` (Linux).
