@@ -3,8 +3,9 @@
 //! a live scan, a scene that changed during the sweep).
 //!
 //! Per channel, a morphological opening (a minimum, then a maximum, over a square
-//! window `2r + 1` px wide, each separable and by van Herk / Gil–Werman in three
-//! comparisons per pixel whatever `r`): anything bright and narrower than the window
+//! window `2r + 1` px wide, each separable: down the columns by van Herk / Gil–Werman
+//! in three comparisons per pixel whatever `r`, along the rows by doubling in
+//! `log₂(2r + 1) + 1`, both over whole rows, which vectorise): anything bright and narrower than the window
 //! (a stripe) is taken out, while surfaces, their shading and the steps between them
 //! (a checkerboard's squares, a lit wall's edge) are kept as they are. The opening of a
 //! noisy surface lies below its mean by the noise's extreme over the window; that bias
@@ -68,8 +69,8 @@ impl LocalBackground {
         let (a, b) = (&mut self.a, &mut self.b);
         let (g, hs) = (&mut self.g, &mut self.h);
         cols_pass(src, a, (w, h), r, g, hs, u8::min);
-        rows_pass(a, b, (w, h), r, (g, hs), u8::min, u8::MAX);
-        rows_pass(b, a, (w, h), r, (g, hs), u8::max, 0);
+        rows_pass(a, b, w, r, (g, hs), u8::min, u8::MAX);
+        rows_pass(b, a, w, r, (g, hs), u8::max, 0);
         let dst: &mut [u8] = out;
         cols_pass(a, dst, (w, h), r, g, hs, u8::max);
         let bias = noise_bias(src, dst);
@@ -120,7 +121,7 @@ fn noise_bias(frame: &[u8], opening: &[u8]) -> [u8; 3] {
 fn rows_pass<F: Fn(u8, u8) -> u8 + Copy>(
     src: &[u8],
     dst: &mut [u8],
-    (w, _h): (usize, usize),
+    w: usize,
     r: usize,
     (p, q): (&mut [u8], &mut [u8]),
     op: F,

@@ -76,16 +76,15 @@ pub(crate) fn refusal(stats: &cloud::TriangulateStats, fit: Option<Fit>) -> Opti
             stats.inconsistent_points, stats.kept
         ));
     }
-    let fit = fit.filter(|f| {
-        f.predicted_px > 0.0 && f.fitted_px > FIT_LIMIT * f.predicted_px.max(PRECISION_FLOOR_PX)
-    })?;
-    Some(format!(
-        "the self-calibration failed its check, so no cloud is written: the planes fit \
-         the crossings to {:.3} px where the curves place them to {:.4} px, {:.0} times \
-         worse (right planes fit within 5 times, and {FIT_LIMIT:.0} is the limit), so \
-         the planes are not the ones the curves describe. {ADVICE}",
-        fit.fitted_px,
-        fit.predicted_px,
-        fit.fitted_px / fit.predicted_px
-    ))
+    let fit = fit.filter(|f| f.predicted_px > 0.0)?;
+    let ratio = fit.fitted_px / fit.predicted_px.max(PRECISION_FLOOR_PX);
+    (ratio > FIT_LIMIT).then(|| {
+        format!(
+            "the self-calibration failed its check, so no cloud is written: the planes fit \
+             the crossings to {:.3} px where the curves place them to {:.4} px, {:.0} \
+             times worse (right planes fit within 5 times, and {FIT_LIMIT:.0} is the \
+             limit), so the planes are not the ones the curves describe. {ADVICE}",
+            fit.fitted_px, fit.predicted_px, ratio
+        )
+    })
 }
