@@ -24,6 +24,7 @@
 
 use faer::Mat;
 use nalgebra::{DMatrix, DVector, Vector3};
+use rayon::prelude::*;
 
 use super::evidence::{CrossingClass, Evidence};
 
@@ -50,11 +51,20 @@ pub fn fixed_centre_start(
     cancel: &super::Cancel,
 ) -> Option<(Vec<Option<V3>>, f64)> {
     let sub = Sample::new(evidence, |f| f % SEARCH_FRAME_STEP == 0);
+    // Each direction is scored on its own (in parallel, in order: the answer does not
+    // depend on the number of threads).
     let mut scored: Vec<(f64, V3)> = fibonacci(SEARCH_DIRECTIONS)
-        .into_iter()
-        .take_while(|_| !cancel.is_cancelled())
-        .filter_map(|c| sub.score(&c).map(|s| (s, c)))
+        .into_par_iter()
+        .filter_map(|c| {
+            if cancel.is_cancelled() {
+                return None;
+            }
+            sub.score(&c).map(|s| (s, c))
+        })
         .collect();
+    if cancel.is_cancelled() {
+        return None;
+    }
     scored.sort_by(|a, b| a.0.total_cmp(&b.0));
     scored.truncate(REFINED);
     // Refine each on shrinking caps of directions around it.
@@ -65,8 +75,12 @@ pub fn fixed_centre_start(
             if cancel.is_cancelled() {
                 return None;
             }
-            for c in cap(&entry.1, step) {
-                if let Some(s) = sub.score(&c) {
+            let ring: Vec<(Option<f64>, V3)> = cap(&entry.1, step)
+                .into_par_iter()
+                .map(|c| (sub.score(&c), c))
+                .collect();
+            for (s, c) in ring {
+                if let Some(s) = s {
                     if s < entry.0 {
                         *entry = (s, c);
                     }
