@@ -516,16 +516,11 @@ impl Layout<'_> {
     }
 }
 
-/// Completes `h`'s lower triangle into a full symmetric matrix, adds the gauge row
-/// `gauge` (weight: the mean diagonal) and the ridge.
+/// Adds the gauge row `gauge` (weight: the mean diagonal) and the ridge to `h`'s lower
+/// triangle, the only one the factorisations read (`Side::Lower`): the upper triangle
+/// stays as it was, so `h` is not symmetric afterwards.
 fn regularise(h: &mut Mat<f64>, gauge: &[f64]) {
     let n = h.nrows();
-    for j in 0..n {
-        for i in 0..j {
-            let v = h[(j, i)];
-            h[(i, j)] = v;
-        }
-    }
     let mean_diag = (0..n).map(|i| h[(i, i)]).sum::<f64>() / n.max(1) as f64;
     let norm = gauge.iter().map(|x| x * x).sum::<f64>().sqrt();
     if norm > 0.0 {
@@ -534,9 +529,9 @@ fn regularise(h: &mut Mat<f64>, gauge: &[f64]) {
             if gj == 0.0 {
                 continue;
             }
-            let col = h.col_as_slice_mut(j);
-            for (i, &gi) in gauge.iter().enumerate() {
-                col[i] += scale * gi * gj;
+            let col = &mut h.col_as_slice_mut(j)[j..];
+            for (c, &gi) in col.iter_mut().zip(&gauge[j..]) {
+                *c += scale * gi * gj;
             }
         }
     }
