@@ -461,8 +461,14 @@ pub fn reconstruct_scan(
     times.intersect_s = build_s + t.elapsed().as_secs_f64();
 
     let t = Instant::now();
+    // Every frame is extracted by now (offline, and the daemon's final solve): the dense
+    // factorisations may take every core. The answer does not depend on it.
+    let solve_params = solve::SolveParams {
+        dense_threads: solve::dense::DenseThreads(rayon::current_num_threads()),
+        ..config.solve.clone()
+    };
     let calibration = match source {
-        PlaneSource::SelfCalibrated => Some(solve::calibrate(&evidence, &config.solve)?),
+        PlaneSource::SelfCalibrated => Some(solve::calibrate(&evidence, &solve_params)?),
         PlaneSource::StartedFrom(known) => {
             let start: Vec<Option<Vector3<f64>>> = evidence
                 .planes
@@ -476,7 +482,7 @@ pub fn reconstruct_scan(
                 .collect();
             Some(solve::calibrate_from(
                 &evidence,
-                &config.solve,
+                &solve_params,
                 Some(&start),
             )?)
         }

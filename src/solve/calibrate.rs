@@ -295,6 +295,7 @@ pub fn calibrate_until(
     let eparams = EstimateParams {
         estimate_focal: params.estimate_focal,
         cancel: cancel.clone(),
+        threads: params.dense_threads,
         ..EstimateParams::default()
     };
     let (start, planes, mut estimates) = match given {

@@ -38,6 +38,7 @@
 use faer::Mat;
 use nalgebra::{SMatrix, SVector};
 
+use super::dense::{Cholesky, DenseThreads};
 use super::evidence::{CrossingClass, Evidence, Ray};
 use super::pose::{CrossPose, POSE_DOF};
 use super::terms::{self, Loss, MotionTerm};
@@ -62,6 +63,8 @@ pub struct EstimateParams {
     pub motion_loss: f64,
     /// Stops the estimate between steps ([`SolveError::Cancelled`]).
     pub cancel: super::Cancel,
+    /// Threads of the dense factorisations ([`super::dense`]).
+    pub threads: DenseThreads,
 }
 
 impl Default for EstimateParams {
@@ -76,6 +79,7 @@ impl Default for EstimateParams {
             crossing_loss: 3.0,
             motion_loss: 2.0,
             cancel: super::Cancel::default(),
+            threads: DenseThreads::default(),
         }
     }
 }
@@ -542,17 +546,10 @@ fn regularise(h: &mut Mat<f64>, gauge: &[f64]) {
 }
 
 /// Solves `(H + μ diag H) δ = −g`; `None` if it does not factor.
-fn damped_step(h: &Mat<f64>, g: &[f64], mu: f64) -> Option<Vec<f64>> {
-    let n = h.nrows();
-    let mut a = h.clone();
-    for i in 0..n {
-        let d = h[(i, i)];
-        a[(i, i)] = d + mu * d;
-    }
-    let llt = a.llt(faer::Side::Lower).ok()?;
-    let mut step = Mat::<f64>::from_fn(n, 1, |i, _| -g[i]);
-    faer::linalg::solvers::Solve::solve_in_place(&llt, step.as_mut());
-    let out: Vec<f64> = (0..n).map(|i| step[(i, 0)]).collect();
+fn damped_step(h: &Mat<f64>, g: &[f64], mu: f64, threads: DenseThreads) -> Option<Vec<f64>> {
+    let llt = Cholesky::of_lower(h, mu, threads)?;
+    let minus_g: Vec<f64> = g.iter().map(|x| -x).collect();
+    let out = llt.solve(&minus_g);
     out.iter().all(|x| x.is_finite()).then_some(out)
 }
 
@@ -574,7 +571,7 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
         regularise(&mut h, &gauge);
         let mut accepted = None;
         for _ in 0..10 {
-            if let Some(step) = damped_step(&h, &g, mu) {
+            if let Some(step) = damped_step(&h, &g, mu, layout.params.threads) {
                 let mut trial = state.moved(&step, focal);
                 layout.renormalise(&mut trial, target);
                 let c = layout.cost(&trial, spreads);
@@ -613,8 +610,7 @@ fn covariance(layout: &Layout, state: &State, spreads: &Spreads) -> Option<Mat<f
     let (mut h, _, _) = layout.normal_equations(state, spreads);
     let (_, gauge) = layout.gauge(state, &layout.rays(state.focal_scale));
     regularise(&mut h, &gauge);
-    let llt = h.llt(faer::Side::Lower).ok()?;
-    Some(faer::linalg::solvers::DenseSolveCore::inverse(&llt))
+    Some(Cholesky::of_lower(&h, 0.0, layout.params.threads)?.inverse())
 }
 
 /// `j Σ jᵀ` over the unknowns `idx`.

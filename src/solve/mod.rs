@@ -42,6 +42,7 @@ pub mod calibrate;
 pub mod centre;
 pub mod choose;
 pub mod conditional;
+pub mod dense;
 pub mod estimate;
 pub mod evidence;
 pub mod extend;
@@ -201,6 +202,12 @@ pub struct SolveParams {
     /// together) were the worst of the water scenes, 1.3-3 % off. Relative, so that
     /// noisier crossings everywhere drop nothing more. 0 keeps all.
     pub uncertain_plane_ratio: f64,
+    /// Threads of the joint estimator's dense factorisations: set by the caller, not the
+    /// configuration (`reconstruct` and the daemon's final solve run after the
+    /// extraction and have the cores; the daemon's epochs share them with its
+    /// extraction workers and keep one). The answer does not depend on it.
+    #[serde(skip)]
+    pub dense_threads: dense::DenseThreads,
 }
 
 impl Default for SolveParams {
@@ -221,6 +228,7 @@ impl Default for SolveParams {
             min_curve_strength: 40.0,
             min_crossing_strength: 15.0,
             uncertain_plane_ratio: 4.0,
+            dense_threads: dense::DenseThreads::default(),
         }
     }
 }
