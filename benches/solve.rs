@@ -1,12 +1,17 @@
 //! Crossing search and the global plane solve on synthetic scans with known planes.
 //!
-//! `cargo bench --bench solve`. The scans come from `crossline::solve::synthetic`: a
-//! room seen from inside, random hand-held crosses.
+//! `cargo bench --bench solve` (`-- calibrate` for the self-calibration alone). The
+//! scans come from `crossline::solve::synthetic`: a room seen from inside, random
+//! hand-held crosses, and a smooth hand path.
 
 use criterion::{criterion_group, Criterion};
 use crossline::intersect::find_crossings;
-use crossline::solve::synthetic::{analytic_crossings, curve_polyline, random_scan, ScanSpec};
-use crossline::solve::{solve, Problem, SolveParams};
+use crossline::solve::dense::DenseThreads;
+use crossline::solve::evidence::{CrossingClass, Evidence, Observation, PlaneSlot, RayModel};
+use crossline::solve::synthetic::{
+    analytic_crossings, curve_polyline, path_scan, random_scan, PathSpec, Rng, ScanSpec,
+};
+use crossline::solve::{calibrate, solve, Problem, SolveParams};
 use std::hint::black_box;
 
 fn crossing_search(c: &mut Criterion) {
@@ -64,7 +69,62 @@ fn global_solve(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, crossing_search, global_solve);
+/// The self-calibration of a 300-frame hand path over the synthetic room (300 poses, all
+/// of them anchors: 1,800 unknowns in the joint estimate), its crossings exact but for
+/// 0.1 px of noise; the dense factorisations on one thread and on two
+/// (`SolveParams::dense_threads`: the same answer).
+fn self_calibration(c: &mut Criterion) {
+    const FOCAL_PX: f64 = 1000.0;
+    let scan = path_scan(&PathSpec {
+        frames: 300,
+        ..PathSpec::default()
+    });
+    let planes = scan.flat_planes();
+    let mut rng = Rng::new(3);
+    let crossings: Vec<Observation> = analytic_crossings(&scan.scene, &planes, 0.1)
+        .into_iter()
+        .map(|c| Observation {
+            a: c.a,
+            b: c.b,
+            u: [
+                c.u[0] + 0.1 / FOCAL_PX * rng.normal(),
+                c.u[1] + 0.1 / FOCAL_PX * rng.normal(),
+            ],
+            sin_angle: c.sin_angle,
+            class: CrossingClass::Strong,
+        })
+        .collect();
+    let evidence = Evidence {
+        pose_frames: (0..scan.planes.len() as u32).collect(),
+        anchors: Vec::new(),
+        planes: (0..planes.len())
+            .map(|i| PlaneSlot {
+                pose: (i / 2) as u32,
+                laser: (i % 2) as u8,
+            })
+            .collect(),
+        crossings,
+        focal_px: FOCAL_PX,
+        rays: RayModel::default(),
+    };
+    eprintln!(
+        "self-calibration: {} poses, {} crossings",
+        evidence.num_poses(),
+        evidence.crossings.len()
+    );
+    let mut group = c.benchmark_group("calibrate");
+    group.sample_size(10);
+    for threads in [1, 2] {
+        let mut params = SolveParams::default();
+        params.dense_threads = DenseThreads(threads);
+        group.bench_function(format!("path_300_poses_{threads}_threads"), |b| {
+            b.iter(|| calibrate(black_box(&evidence), &params).map(|c| c.summary.iterations))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, crossing_search, global_solve, self_calibration);
 
 /// faer's dense kernels on one thread, as the `crossline` binary runs them: on these
 /// sizes its parallel kernels spend more time waking threads than computing, so the
