@@ -22,7 +22,10 @@
 //!
 //! # Minimisation
 //! Levenberg–Marquardt on the dense normal equations (six unknowns a pose, one more for
-//! the focal scale), the robust weights recomputed at every linearisation. Dense,
+//! the focal scale), the robust weights recomputed at every linearisation. A step must
+//! keep the ray of every crossing: below some focal scale the lens model folds back over
+//! a crossing's pixel (no ray), the crossing drops out of the cost, and the cost would
+//! fall by losing data rather than by fitting it. Dense,
 //! because a sweep's crossing graph is: each frame's stripe crosses the other laser's
 //! stripes of most frames, so a sparse factor would fill in.
 //!
@@ -283,6 +286,16 @@ impl<'a> Layout<'a> {
             ev.focal_px,
             state.focal_scale,
         )
+    }
+
+    /// How many crossings have a ray at focal scale `lambda`: the others lie where the
+    /// distortion, applied at the corrected radius, folds back and has no inverse.
+    fn rays_formed(&self, lambda: f64) -> usize {
+        self.evidence
+            .crossings
+            .iter()
+            .filter(|c| self.evidence.rays.ray(c.u, lambda).is_some())
+            .count()
     }
 
     fn rays(&self, lambda: f64) -> Vec<Option<Ray>> {
@@ -561,6 +574,7 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
     let mut mu = 1e-4;
     let mut steps = 0;
     let mut current = layout.cost(&state, spreads);
+    let rays_now = layout.rays_formed(state.focal_scale);
     let mut last_decrease = f64::INFINITY;
     for _ in 0..layout.params.max_iterations {
         if layout.params.cancel.is_cancelled() {
@@ -575,7 +589,13 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
                 let mut trial = state.moved(&step, focal);
                 layout.renormalise(&mut trial, target);
                 let c = layout.cost(&trial, spreads);
-                if c.is_finite() && c < current && trial.focal_scale > 0.0 {
+                // A focal scale at which some crossing's ray cannot be formed drops that
+                // crossing from the cost: the cost falls by losing data, not by fitting
+                // it. Such a step is no step.
+                let keeps_rays = focal.is_none()
+                    || (trial.focal_scale > 0.0
+                        && layout.rays_formed(trial.focal_scale) >= rays_now);
+                if c.is_finite() && c < current && trial.focal_scale > 0.0 && keeps_rays {
                     accepted = Some((trial, c));
                     mu = (mu / 3.0).max(1e-12);
                     break;
