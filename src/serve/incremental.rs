@@ -327,28 +327,18 @@ impl Incremental {
     }
 }
 
-/// The epoch's solve runs on one thread at the lowest CPU priority: its parallel parts
-/// (the centre search, the poses fitted against the anchors) would otherwise take the
-/// global pool's threads, and its steps the cores, from the extraction workers, and the
-/// ring drops frames while an epoch runs. At nice 19 it takes what the frame path
-/// leaves. The final solve ([`Incremental::finish`]) runs after the last frame and keeps
-/// every core.
+/// The epoch's solve runs on a one-thread pool of its own: its parallel parts (the centre
+/// search, the poses fitted against the anchors) would otherwise take the global pool's
+/// threads beside its own, and with them the extraction workers' cores. It keeps the
+/// normal priority: at nice 19 (tried) a loaded machine starved it, and the unit tests'
+/// epochs never came while frames were fed. The final solve
+/// ([`Incremental::finish`]) runs after the last frame and keeps every core.
 fn epoch_pool() -> Result<rayon::ThreadPool, rayon::ThreadPoolBuildError> {
     rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .thread_name(|_| "solver-epoch-pool".into())
         .stack_size(super::WORKER_STACK_BYTES)
-        .start_handler(|_| background_priority())
         .build()
-}
-
-/// Lowers the calling thread to nice 19 (Linux's nice value is per thread). A failure
-/// costs only the priority, and is logged.
-fn background_priority() {
-    let tid = rustix::thread::gettid();
-    if let Err(e) = rustix::process::setpriority_process(Some(tid), 19) {
-        tracing::debug!("cannot lower the epoch solver's priority: {e}");
-    }
 }
 
 #[cfg(test)]
@@ -356,26 +346,18 @@ mod tests {
     use super::*;
     use crate::solve::synthetic::{curve_polyline, random_scan, worst_off_surface, ScanSpec};
 
-    /// An epoch's solve (and anything it runs in parallel) stays on one thread at nice
-    /// 19, out of the extraction workers' way.
+    /// An epoch's solve (and anything it runs in parallel) stays on one thread.
     #[test]
-    fn the_epoch_pool_is_one_thread_at_the_lowest_priority() {
-        let own = || rustix::process::getpriority_process(Some(rustix::thread::gettid()));
-        let before = own().expect("getpriority");
+    fn the_epoch_pool_is_one_named_thread() {
         let pool = epoch_pool().expect("pool");
-        let (threads, nice, name) = pool.install(|| {
-            let tid = rustix::thread::gettid();
+        let (threads, name) = pool.install(|| {
             (
                 rayon::current_num_threads(),
-                rustix::process::getpriority_process(Some(tid)).expect("getpriority"),
                 std::thread::current().name().map(str::to_owned),
             )
         });
         assert_eq!(threads, 1);
-        assert_eq!(nice, 19);
         assert_eq!(name.as_deref(), Some("solver-epoch-pool"));
-        // The caller's own priority is untouched.
-        assert_eq!(own().expect("getpriority"), before);
     }
 
     /// With the focal length estimated (the in-air calibration under water: every
