@@ -7,9 +7,8 @@
 use criterion::{criterion_group, Criterion};
 use crossline::intersect::find_crossings;
 use crossline::solve::dense::DenseThreads;
-use crossline::solve::evidence::{CrossingClass, Evidence, Observation, PlaneSlot, RayModel};
 use crossline::solve::synthetic::{
-    analytic_crossings, curve_polyline, path_scan, random_scan, PathSpec, Rng, ScanSpec,
+    analytic_crossings, curve_polyline, path_evidence, path_scan, random_scan, PathSpec, ScanSpec,
 };
 use crossline::solve::{calibrate, solve, Problem, SolveParams};
 use std::hint::black_box;
@@ -79,34 +78,7 @@ fn self_calibration(c: &mut Criterion) {
         frames: 300,
         ..PathSpec::default()
     });
-    let planes = scan.flat_planes();
-    let mut rng = Rng::new(3);
-    let crossings: Vec<Observation> = analytic_crossings(&scan.scene, &planes, 0.1)
-        .into_iter()
-        .map(|c| Observation {
-            a: c.a,
-            b: c.b,
-            u: [
-                c.u[0] + 0.1 / FOCAL_PX * rng.normal(),
-                c.u[1] + 0.1 / FOCAL_PX * rng.normal(),
-            ],
-            sin_angle: c.sin_angle,
-            class: CrossingClass::Strong,
-        })
-        .collect();
-    let evidence = Evidence {
-        pose_frames: (0..scan.planes.len() as u32).collect(),
-        anchors: Vec::new(),
-        planes: (0..planes.len())
-            .map(|i| PlaneSlot {
-                pose: (i / 2) as u32,
-                laser: (i % 2) as u8,
-            })
-            .collect(),
-        crossings,
-        focal_px: FOCAL_PX,
-        rays: RayModel::default(),
-    };
+    let evidence = path_evidence(&scan, FOCAL_PX, 0.1, 3, |_, _| true);
     eprintln!(
         "self-calibration: {} poses, {} crossings",
         evidence.num_poses(),

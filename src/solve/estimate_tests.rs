@@ -4,55 +4,22 @@
 use nalgebra::{Rotation3, Vector3};
 
 use super::estimate::{estimate, EstimateParams, Spreads, Start};
-use super::evidence::{CrossingClass, Evidence, Observation, PlaneSlot, Ray, RayModel};
+use super::evidence::{CrossingClass, Evidence, Observation, Ray, RayModel};
 use super::pose::CrossPose;
-use super::synthetic::{analytic_crossings, path_scan, PathScan, PathSpec, Rng, Scene};
+use super::synthetic::{path_scan, PathScan, PathSpec, Rng, Scene};
 
 type V3 = Vector3<f64>;
 
 const FOCAL_PX: f64 = 1000.0;
 
-/// The evidence of `scan`: every frame a pose, both lasers planes, every analytic
-/// crossing (moved by Gaussian noise of `noise_px` pixels), kept where `keep` says.
+/// The evidence of `scan` at [`FOCAL_PX`] ([`super::synthetic::path_evidence`]).
 pub(super) fn evidence_of(
     scan: &PathScan,
     noise_px: f64,
     seed: u64,
     keep: impl Fn(&Observation, &V3) -> bool,
 ) -> Evidence {
-    let planes = scan.flat_planes();
-    let mut rng = Rng::new(seed);
-    let crossings = analytic_crossings(&scan.scene, &planes, 0.1)
-        .into_iter()
-        .filter_map(|c| {
-            let o = Observation {
-                a: c.a,
-                b: c.b,
-                u: [
-                    c.u[0] + noise_px / FOCAL_PX * rng.normal(),
-                    c.u[1] + noise_px / FOCAL_PX * rng.normal(),
-                ],
-                sin_angle: c.sin_angle,
-                class: CrossingClass::Strong,
-            };
-            let r = V3::new(c.u[0], c.u[1], 1.0);
-            let x = r / planes[c.a as usize].dot(&r);
-            keep(&o, &x).then_some(o)
-        })
-        .collect();
-    Evidence {
-        pose_frames: (0..scan.planes.len() as u32).collect(),
-        anchors: Vec::new(),
-        planes: (0..planes.len())
-            .map(|i| PlaneSlot {
-                pose: (i / 2) as u32,
-                laser: (i % 2) as u8,
-            })
-            .collect(),
-        crossings,
-        focal_px: FOCAL_PX,
-        rays: RayModel::default(),
-    }
+    super::synthetic::path_evidence(scan, FOCAL_PX, noise_px, seed, keep)
 }
 
 /// The true poses of `scan`, their normals signed to turn smoothly.

@@ -16,6 +16,7 @@
 
 use crate::intersect::Crossing;
 use crate::rng::SplitMix64;
+use crate::solve::evidence::{CrossingClass, Evidence, Observation, PlaneSlot, RayModel};
 use nalgebra::Vector3;
 
 /// The simulator's SplitMix64 with the draws synthetic scenes need.
@@ -532,5 +533,50 @@ pub fn path_scan(spec: &PathSpec) -> PathScan {
         scene: spec.scene.clone(),
         centres,
         planes,
+    }
+}
+
+/// The evidence of `scan` for a camera of focal length `focal_px`: every frame a pose,
+/// both lasers planes, every analytic crossing (moved by Gaussian noise of `noise_px`
+/// pixels), kept where `keep` says (given the observation and its true 3D point).
+pub fn path_evidence(
+    scan: &PathScan,
+    focal_px: f64,
+    noise_px: f64,
+    seed: u64,
+    keep: impl Fn(&Observation, &Vector3<f64>) -> bool,
+) -> Evidence {
+    let planes = scan.flat_planes();
+    let mut rng = Rng::new(seed);
+    let crossings = analytic_crossings(&scan.scene, &planes, 0.1)
+        .into_iter()
+        .filter_map(|c| {
+            let o = Observation {
+                a: c.a,
+                b: c.b,
+                u: [
+                    c.u[0] + noise_px / focal_px * rng.normal(),
+                    c.u[1] + noise_px / focal_px * rng.normal(),
+                ],
+                sin_angle: c.sin_angle,
+                class: CrossingClass::Strong,
+            };
+            let r = Vector3::new(c.u[0], c.u[1], 1.0);
+            let x = r / planes[c.a as usize].dot(&r);
+            keep(&o, &x).then_some(o)
+        })
+        .collect();
+    Evidence {
+        pose_frames: (0..scan.planes.len() as u32).collect(),
+        anchors: Vec::new(),
+        planes: (0..planes.len())
+            .map(|i| PlaneSlot {
+                pose: (i / 2) as u32,
+                laser: (i % 2) as u8,
+            })
+            .collect(),
+        crossings,
+        focal_px,
+        rays: RayModel::default(),
     }
 }
