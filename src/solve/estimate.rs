@@ -288,16 +288,6 @@ impl<'a> Layout<'a> {
         )
     }
 
-    /// How many crossings have a ray at focal scale `lambda`: the others lie where the
-    /// distortion, applied at the corrected radius, folds back and has no inverse.
-    fn rays_formed(&self, lambda: f64) -> usize {
-        self.evidence
-            .crossings
-            .iter()
-            .filter(|c| self.evidence.rays.ray(c.u, lambda).is_some())
-            .count()
-    }
-
     fn rays(&self, lambda: f64) -> Vec<Option<Ray>> {
         self.evidence
             .crossings
@@ -324,7 +314,15 @@ impl<'a> Layout<'a> {
 
     /// The robust cost at `state`.
     fn cost(&self, state: &State, spreads: &Spreads) -> f64 {
+        self.cost_and_rays(state, spreads).0
+    }
+
+    /// The robust cost at `state`, and how many crossings have a ray at its focal scale:
+    /// the others lie where the distortion, applied at the corrected radius, folds back
+    /// and has no inverse, and are not in the cost.
+    fn cost_and_rays(&self, state: &State, spreads: &Spreads) -> (f64, usize) {
         let rays = self.rays(state.focal_scale);
+        let formed = rays.iter().filter(|r| r.is_some()).count();
         let mut cost = 0.0;
         for k in 0..self.evidence.crossings.len() {
             if let Some(t) = self.crossing(state, k, &rays) {
@@ -336,7 +334,7 @@ impl<'a> Layout<'a> {
             let (c, r) = self.motion_terms(state, t);
             cost += self.motion_cost(&c, &r, spreads);
         }
-        cost
+        (cost, formed)
     }
 
     fn motion_cost(&self, c: &MotionTerm, r: &MotionTerm, s: &Spreads) -> f64 {
@@ -573,8 +571,7 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
     let target = layout.gauge(&state, &layout.rays(state.focal_scale)).0;
     let mut mu = 1e-4;
     let mut steps = 0;
-    let mut current = layout.cost(&state, spreads);
-    let rays_now = layout.rays_formed(state.focal_scale);
+    let (mut current, rays_now) = layout.cost_and_rays(&state, spreads);
     let mut last_decrease = f64::INFINITY;
     for _ in 0..layout.params.max_iterations {
         if layout.params.cancel.is_cancelled() {
@@ -588,14 +585,11 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
             if let Some(step) = damped_step(&h, &g, mu, layout.params.threads) {
                 let mut trial = state.moved(&step, focal);
                 layout.renormalise(&mut trial, target);
-                let c = layout.cost(&trial, spreads);
                 // A focal scale at which some crossing's ray cannot be formed drops that
                 // crossing from the cost: the cost falls by losing data, not by fitting
                 // it. Such a step is no step.
-                let keeps_rays = focal.is_none()
-                    || (trial.focal_scale > 0.0
-                        && layout.rays_formed(trial.focal_scale) >= rays_now);
-                if c.is_finite() && c < current && trial.focal_scale > 0.0 && keeps_rays {
+                let (c, rays) = layout.cost_and_rays(&trial, spreads);
+                if c.is_finite() && c < current && trial.focal_scale > 0.0 && rays >= rays_now {
                     accepted = Some((trial, c));
                     mu = (mu / 3.0).max(1e-12);
                     break;
