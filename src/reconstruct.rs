@@ -9,41 +9,26 @@
 //! live daemon ([`crate::pipeline::reconstruct_curves`]).
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use image::RgbImage;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
 use crate::capture::dump::{DumpError, DumpHeader, DumpReader};
 use crate::capture::video::{self, VideoError, VideoFile, Window};
 use crate::cloud::ScaleMode;
 use crate::config::Config;
-use crate::extract::{Background, Curve, Extractor};
 use streamed::{check_video_size, video_image};
 
+mod extraction;
 mod streamed;
+
+pub use extraction::{extract_frames, Extracted};
 
 use crate::pipeline::PipelineError;
 pub use crate::pipeline::{
     reconstruct_curves, PlaneSource, ReconstructReport, Reconstruction, StageTimes, REPORT_VERSION,
 };
-
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct BackgroundParams {
-    /// Frames sampled evenly over the sequence for the temporal median background
-    /// (ignored when a laser-off frame is given). More frames cost time once; an odd
-    /// number avoids averaging two middle values.
-    pub median_frames: usize,
-}
-
-impl Default for BackgroundParams {
-    fn default() -> Self {
-        Self { median_frames: 25 }
-    }
-}
 
 #[derive(Debug, thiserror::Error)]
 pub enum ReconstructError {
@@ -296,24 +281,41 @@ fn decode(path: &Path, camera: &Camera) -> Result<RgbImage, ReconstructError> {
 }
 
 impl FrameSource {
-    /// `f(state, i, frame i)` for every `i` of `wanted` (ascending), in parallel, the
-    /// results in that order; each thread's `state` comes from `init` and is reused. A
-    /// video is decoded in one pass ([`streamed`]) and ends at its last whole frame:
-    /// the result may then be shorter than `wanted`.
-    fn map_frames<S: Send, T: Send>(
-        &self,
+    /// A pass over the frames in order, block by block ([`FramePass::map_frames`]).
+    fn pass<'a>(&'a self, camera: &'a Camera) -> Result<FramePass<'a>, ReconstructError> {
+        Ok(match self {
+            Self::Video(file) => FramePass::Video(streamed::VideoPass::new(file, camera)?),
+            _ => FramePass::Random(self, camera),
+        })
+    }
+}
+
+/// Frames of a [`FrameSource`] taken in ascending order, in blocks.
+enum FramePass<'a> {
+    /// Files and dumps: any frame decodes on its own, in parallel.
+    Random(&'a FrameSource, &'a Camera),
+    /// A video: one FFmpeg pass, a few frames ahead of the workers.
+    Video(streamed::VideoPass<'a>),
+}
+
+impl FramePass<'_> {
+    /// `f(state, i, frame i)` for every `i` of `wanted` (ascending, after those of any
+    /// earlier call), in parallel, the results in that order; each thread's `state` comes
+    /// from `init` and is reused. A video ends at its last whole frame: the result may
+    /// then be shorter than `wanted`.
+    pub fn map_frames<S: Send, T: Send>(
+        &mut self,
         wanted: &[usize],
-        camera: &Camera,
         init: impl Fn() -> S + Sync + Send,
         f: impl Fn(&mut S, usize, Result<RgbImage, ReconstructError>) -> Result<T, ReconstructError>
             + Sync
             + Send,
     ) -> Result<Vec<T>, ReconstructError> {
         match self {
-            Self::Video(file) => streamed::map_frames(file, wanted, camera, init, f),
-            _ => wanted
+            Self::Video(pass) => pass.map_frames(wanted, init, f),
+            Self::Random(source, camera) => wanted
                 .par_iter()
-                .map_init(&init, |s, &i| f(s, i, self.decode(i, camera)))
+                .map_init(&init, |s, &i| f(s, i, source.decode(i, camera)))
                 .collect(),
         }
     }
@@ -381,87 +383,6 @@ impl<F: Fn(&str, usize, usize) + Sync> Progress for F {
     fn update(&self, stage: &str, done: usize, total: usize) {
         self(stage, done, total)
     }
-}
-
-/// The curves of every frame of a recording, as [`reconstruct_files`] extracts them.
-pub struct Extracted {
-    /// Per frame (skipped frames have none), in frame order.
-    pub per_frame: Vec<Vec<Curve>>,
-    /// The background the curves were measured against.
-    pub background: Background,
-    /// Frames that could not be decoded and were skipped.
-    pub frames_skipped: usize,
-    pub background_s: f64,
-    pub extract_s: f64,
-}
-
-/// The background policy and extraction over a recording: the laser-off frame
-/// `background` or the temporal median of frames sampled over the recording, then every
-/// frame's curves in parallel. Undecodable frames are skipped and counted.
-pub fn extract_frames(
-    frames: &FrameSource,
-    background: Option<&Path>,
-    camera: &Camera,
-    config: &Config,
-    progress: &dyn Progress,
-) -> Result<Extracted, ReconstructError> {
-    let t = Instant::now();
-    // Undecodable frames among the background's samples are left out of the median;
-    // they are counted once, below, when extraction meets them again.
-    let sampled = Skipped::default();
-    let background = match background {
-        Some(path) => Background::from_image(decode(path, camera)?),
-        None => {
-            let k = config.background.median_frames.clamp(1, frames.len());
-            let picks: Vec<usize> = (0..k)
-                .map(|i| (i * frames.len()) / k + frames.len() / (2 * k))
-                .collect();
-            let images =
-                frames.map_frames(&picks, camera, || (), |_, i, r| sampled.filter(i, r))?;
-            let refs: Vec<&RgbImage> = images.iter().flatten().collect();
-            Background::median_of(&refs)?
-        }
-    };
-    let background_s = t.elapsed().as_secs_f64();
-
-    let t = Instant::now();
-    // Validate the parameters once; every worker thread then builds its own extractor
-    // (they own their scratch buffers), which cannot fail any more.
-    Extractor::new(&config.extract, camera)?;
-    let done = std::sync::atomic::AtomicUsize::new(0);
-    let skipped = Skipped::default();
-    let all: Vec<usize> = (0..frames.len()).collect();
-    let per_frame: Vec<Vec<Curve>> = frames.map_frames(
-        &all,
-        camera,
-        || Extractor::new(&config.extract, camera).ok(),
-        |extractor, i, image| {
-            let Some(extractor) = extractor.as_mut() else {
-                return Err(ReconstructError::Internal("extractor construction failed"));
-            };
-            let curves = match skipped.filter(i, image)? {
-                Some(img) => extractor.extract(&img, &background),
-                None => Vec::new(),
-            };
-            let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-            progress.update("extract", n, frames.len());
-            Ok(curves)
-        },
-    )?;
-    let frames_skipped = skipped.count();
-    if frames_skipped > 0 {
-        tracing::warn!(
-            "{frames_skipped} of {} frames could not be decoded and were skipped",
-            frames.len()
-        );
-    }
-    Ok(Extracted {
-        per_frame,
-        background,
-        frames_skipped,
-        background_s,
-        extract_s: t.elapsed().as_secs_f64(),
-    })
 }
 
 /// Runs the whole offline pipeline over a recording: [`extract_frames`], then the

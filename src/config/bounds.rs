@@ -14,6 +14,9 @@ use crate::extract::background::MAX_MEDIAN_FRAMES;
 /// Generous on purpose: the point is to refuse what cannot be meant, not to tune.
 pub const BOUNDS: &[(&str, f64, f64)] = &[
     ("background.median_frames", 1.0, MAX_MEDIAN_FRAMES as f64),
+    ("background.warmup_frames", 1.0, 10_000.0),
+    ("background.sample_every", 1.0, 10_000.0),
+    ("background.refresh_every", 1.0, 100_000.0),
     ("extract.high_contrast", 0.0, 1000.0),
     ("extract.low_contrast", 0.0, 1000.0),
     ("extract.faint_start_contrast", 0.0, 1000.0),

@@ -13,9 +13,9 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::cloud::TriangulateParams;
+use crate::extract::rolling::BackgroundParams;
 use crate::extract::ExtractParams;
 use crate::intersect::IntersectParams;
-use crate::reconstruct::BackgroundParams;
 use crate::serve::ServeConfig;
 use crate::solve::SolveParams;
 

@@ -1,6 +1,7 @@
 //! The background the laser is measured against: a laser-off frame, the per-pixel
-//! median of frames, or a running median over a small ring of sampled frames (the
-//! hand-held laser moves, so the median of a few spread-out frames has no laser in it).
+//! median of frames (the hand-held laser moves, so the median of a few spread-out
+//! frames has no laser in it), or each frame's own local background. Which frames a
+//! median is taken of is the policy of [`super::rolling`].
 
 use image::RgbImage;
 
@@ -9,41 +10,10 @@ use super::ExtractError;
 /// Most frames a median is taken over (the per-pixel sort runs on a stack array).
 pub const MAX_MEDIAN_FRAMES: usize = 31;
 
-/// How a running background samples frames and refreshes its median.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct RunningParams {
-    /// Frames kept in the ring (odd is best; at most [`MAX_MEDIAN_FRAMES`]).
-    pub ring_len: usize,
-    /// Keep one frame out of this many offered to [`Background::update`].
-    pub sample_every: usize,
-    /// Recompute the median after this many new samples.
-    pub recompute_every: usize,
-}
-
-impl Default for RunningParams {
-    fn default() -> Self {
-        Self {
-            ring_len: 7,
-            sample_every: 10,
-            recompute_every: 2,
-        }
-    }
-}
-
-#[derive(Clone, Debug)]
-struct Running {
-    params: RunningParams,
-    ring: Vec<RgbImage>,
-    next_slot: usize,
-    offered: usize,
-    since_recompute: usize,
-}
-
-/// The background image the extractor subtracts, and optionally how it is kept fresh.
+/// The background image the extractor subtracts.
 #[derive(Clone, Debug)]
 pub struct Background {
     image: RgbImage,
-    running: Option<Running>,
     /// No laser-off frame: the extractor estimates each frame's own
     /// ([`super::local`]); `image` is black.
     local: bool,
@@ -54,7 +24,6 @@ impl Background {
     pub fn from_image(image: RgbImage) -> Self {
         Self {
             image,
-            running: None,
             local: false,
         }
     }
@@ -89,71 +58,6 @@ impl Background {
         let mut image = RgbImage::new(first.width(), first.height());
         median_into(frames.iter().copied(), frames.len(), &mut image);
         Ok(Self::from_image(image))
-    }
-
-    /// A running median, starting from `initial` (a first frame or a laser-off frame),
-    /// refreshed by [`Self::update`].
-    pub fn running(initial: RgbImage, params: RunningParams) -> Result<Self, ExtractError> {
-        if params.ring_len == 0 || params.ring_len > MAX_MEDIAN_FRAMES {
-            return Err(ExtractError::Background {
-                message: format!(
-                    "ring_len must be 1..={MAX_MEDIAN_FRAMES}, got {}",
-                    params.ring_len
-                ),
-            });
-        }
-        if params.sample_every == 0 || params.recompute_every == 0 {
-            return Err(ExtractError::Background {
-                message: "sample_every and recompute_every must be at least 1".into(),
-            });
-        }
-        Ok(Self {
-            running: Some(Running {
-                params,
-                ring: vec![initial.clone()],
-                next_slot: 1,
-                offered: 0,
-                since_recompute: 0,
-            }),
-            image: initial,
-            local: false,
-        })
-    }
-
-    /// Offers a frame to a running background: one in `sample_every` is kept in the ring
-    /// (reusing the oldest slot's buffer) and the median is recomputed every
-    /// `recompute_every` samples. Returns whether the image changed. A fixed background
-    /// ignores this; so does a frame of the wrong size.
-    pub fn update(&mut self, frame: &RgbImage) -> bool {
-        let Some(run) = self.running.as_mut() else {
-            return false;
-        };
-        if frame.dimensions() != self.image.dimensions() {
-            tracing::warn!(
-                "background update ignored: frame {:?} is not {:?}",
-                frame.dimensions(),
-                self.image.dimensions()
-            );
-            return false;
-        }
-        run.offered += 1;
-        if run.offered % run.params.sample_every != 0 {
-            return false;
-        }
-        if run.ring.len() < run.params.ring_len {
-            run.ring.push(frame.clone());
-        } else {
-            let slot = run.next_slot % run.ring.len();
-            run.ring[slot].copy_from_slice(frame.as_raw());
-        }
-        run.next_slot = (run.next_slot + 1) % run.params.ring_len;
-        run.since_recompute += 1;
-        if run.since_recompute < run.params.recompute_every {
-            return false;
-        }
-        run.since_recompute = 0;
-        median_into(run.ring.iter(), run.ring.len(), &mut self.image);
-        true
     }
 
     pub fn image(&self) -> &RgbImage {
@@ -321,32 +225,5 @@ mod tests {
         let b = RgbImage::new(5, 3);
         let err = Background::median_of(&[&a, &b]).expect_err("size mismatch");
         assert!(err.to_string().contains("frame 1 is 5x3"), "{err}");
-    }
-
-    #[test]
-    fn running_median_follows_the_scene() {
-        let params = RunningParams {
-            ring_len: 3,
-            sample_every: 2,
-            recompute_every: 1,
-        };
-        let mut bg = Background::running(flat([0; 3]), params).expect("running");
-        // Offered frames 1..=6: frames 2, 4, 6 are sampled.
-        let mut changed = 0;
-        for _ in 0..6 {
-            if bg.update(&flat([100, 100, 100])) {
-                changed += 1;
-            }
-        }
-        assert_eq!(changed, 3);
-        assert_eq!(bg.image().get_pixel(3, 2).0, [100, 100, 100]);
-        assert!(Background::running(
-            flat([0; 3]),
-            RunningParams {
-                ring_len: 0,
-                ..params
-            }
-        )
-        .is_err());
     }
 }

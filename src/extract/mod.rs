@@ -109,6 +109,7 @@ mod detect;
 mod faint;
 mod link;
 pub mod local;
+pub mod rolling;
 pub mod score;
 pub mod yuyv;
 
@@ -118,7 +119,7 @@ use image::RgbImage;
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
-pub use background::{Background, RunningParams};
+pub use background::Background;
 pub use colour::{ColourLut, ColourParams, LaserColour};
 use detect::Detector;
 use link::Linker;

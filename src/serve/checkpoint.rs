@@ -5,8 +5,11 @@
 //! frame; crossings, planes and the cloud follow from it in about a second by
 //! re-solving. A scan's state directory holds:
 //!
-//! - `background.png`: the background the curves were measured against (lossless), so
-//!   frames processed after a resume are measured identically;
+//! - `background.png`: the first background the curves were measured against
+//!   (lossless), which the points take their colour from;
+//! - `samples/`: the rolling background's recent samples, so frames processed after a
+//!   resume are measured identically (written by `super::background`, documented
+//!   there);
 //! - `curves.log`: every frame's curves, appended in frame order and flushed to disk
 //!   every `checkpoint_interval_s` (and at shutdown).
 //!

@@ -11,10 +11,11 @@
 //! - `capture` never waits on the workers (except in a lossless replay, which has no
 //!   camera to keep up with): a frame that finds no free ring slot is dropped and
 //!   counted. It records every buffer before anything else looks at it.
-//! - `extract-i` decode and extract. The first `background.median_frames` frames are
-//!   held back until their temporal median is known; then they, and all later frames,
-//!   are measured against it. Frames are numbered by the capture thread, so the
-//!   results are the same for any number of workers.
+//! - `extract-i` decode and extract, each frame against the rolling temporal median
+//!   `reconstruct` uses too ([`crate::extract::rolling`], kept by [`background`]): a
+//!   frame whose background needs a sample still in another worker's hands is parked,
+//!   and the worker goes on. Frames are numbered by the capture thread, so the results
+//!   are the same for any number of workers.
 //! - `solver` puts results back in frame order, checkpoints them, and feeds the
 //!   [`incremental`] solver, whose output goes to the [`net::Hub`].
 //! - `web` serves the live view in the browser ([`web`]): each page is one more
@@ -26,6 +27,7 @@
 //! final solve runs over every curve, the cloud (PLY) and report (JSON) are written,
 //! stream clients get the final epoch and `END`, and `run` returns.
 
+mod background;
 pub mod checkpoint;
 pub mod incremental;
 pub mod net;
@@ -37,7 +39,7 @@ pub mod web;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::{bounded, Receiver, RecvTimeoutError, Sender};
@@ -49,9 +51,11 @@ use crate::capture::dump::{decode_rgb, DumpHeader, DumpWriter};
 use crate::capture::{CaptureError, FrameSource, Next};
 use crate::cloud::ScaleMode;
 use crate::config::Config;
+use crate::extract::rolling::Policy;
 use crate::extract::{Background, Curve, Extractor};
 use crate::ring::{self, FrameMeta, Recv, Slot};
 
+use background::LiveBackground;
 use checkpoint::{Checkpoint, CheckpointWriter, FrameCurves};
 use incremental::{Incremental, IncrementalParams, SolverCounts};
 use status::{DeviceState, Status};
@@ -266,109 +270,6 @@ pub const WORKER_STACK_BYTES: usize = 16 << 20;
 /// carry on with it rather than take the daemon down.
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
-}
-
-/// The background, learnt from the first frames before any is extracted.
-struct Warmup {
-    need: usize,
-    /// The frames' size, for a background made of none of them.
-    size: (u32, u32),
-    state: Mutex<WarmState>,
-    ready: Condvar,
-}
-
-/// Frames the live background is the median of (spread over the warm-up).
-pub const WARMUP_MEDIAN_FRAMES: usize = 9;
-
-/// A frame held during the warm-up (`None`: it could not be decoded).
-type Held = (FrameMeta, Option<RgbImage>);
-
-#[derive(Default)]
-struct WarmState {
-    held: Vec<Held>,
-    /// Held frames waiting for extraction once the background is known; every worker
-    /// takes from here before the ring.
-    backlog: std::collections::VecDeque<Held>,
-    background: Option<Arc<Background>>,
-}
-
-impl Warmup {
-    fn background(&self) -> Option<Arc<Background>> {
-        lock(&self.state).background.clone()
-    }
-
-    /// Waits for the background, giving up when `stop` (workers exit) is set.
-    fn wait(&self, stop: &AtomicBool) -> Option<Arc<Background>> {
-        let mut s = lock(&self.state);
-        loop {
-            if let Some(b) = &s.background {
-                return Some(b.clone());
-            }
-            if stop.load(Ordering::Relaxed) {
-                return None;
-            }
-            s = self
-                .ready
-                .wait_timeout(s, Duration::from_millis(50))
-                .map(|(g, _)| g)
-                .unwrap_or_else(|e| e.into_inner().0);
-        }
-    }
-
-    /// Holds a warm-up frame; when the last one arrives, returns every held frame and
-    /// the background made of them.
-    fn hold(&self, meta: FrameMeta, image: Option<RgbImage>) -> Option<Arc<Background>> {
-        let mut s = lock(&self.state);
-        s.held.push((meta, image));
-        if s.held.len() < self.need {
-            return None;
-        }
-        self.complete(&mut s)
-    }
-
-    fn complete(&self, s: &mut WarmState) -> Option<Arc<Background>> {
-        let mut held = std::mem::take(&mut s.held);
-        held.sort_by_key(|(m, _)| m.index);
-        // The median of a few frames spread over the warm-up: a hand-held laser crosses
-        // any pixel in few of them, and nine cost a fraction of all (the frames behind
-        // them are waiting).
-        let decoded: Vec<&RgbImage> = held.iter().filter_map(|(_, i)| i.as_ref()).collect();
-        let k = decoded.len().min(WARMUP_MEDIAN_FRAMES);
-        let images: Vec<&RgbImage> = (0..k)
-            .map(|i| decoded[(2 * i + 1) * decoded.len() / (2 * k)])
-            .collect();
-        let bg = match Background::median_of(&images) {
-            Ok(b) => b,
-            Err(e) => {
-                // What `extract` does without a laser-off frame: each frame against its
-                // own local background (black would take every lit surface for laser).
-                tracing::warn!(
-                    "no background from the first frames ({e}); each frame is measured \
-                     against its own local background"
-                );
-                Background::local(self.size.0, self.size.1)
-            }
-        };
-        let bg = Arc::new(bg);
-        s.background = Some(bg.clone());
-        s.backlog.extend(held);
-        self.ready.notify_all();
-        Some(bg)
-    }
-
-    /// A held frame to extract, if any are left.
-    fn take_backlog(&self) -> Option<Held> {
-        lock(&self.state).backlog.pop_front()
-    }
-
-    /// End of stream before the warm-up filled: use what there is.
-    fn flush(&self) -> Option<Arc<Background>> {
-        let mut s = lock(&self.state);
-        if s.background.is_some() || s.held.is_empty() {
-            return None;
-        }
-        self.complete(&mut s)
-    }
 }
 
 /// What a worker sends the solver.
@@ -666,15 +567,18 @@ pub fn run(
     .min(MAX_WORKERS);
     let (producer, consumer) = ring::ring(cfg.ring_slots.max(2), slot_bytes);
     let (result_tx, result_rx) = bounded::<Extracted>(2 * workers + 2);
-    let warmup = Arc::new(Warmup {
-        need: opts.config.background.median_frames.max(1),
-        size: (header.width, header.height),
-        state: Mutex::new(WarmState::default()),
-        ready: Condvar::new(),
+    let policy = Policy::new(&opts.config.background)?;
+    let samples_dir = scan.state.join("samples");
+    let live_background = Arc::new(match resumed.background.clone() {
+        Some(bg) => {
+            let decode = |b: &[u8]| decode_rgb(&header, b).ok();
+            let size = (header.width, header.height);
+            let first = Background::from_image(bg.clone());
+            LiveBackground::resume(policy, size, &samples_dir, resumed_frames, first, decode)
+                .unwrap_or_else(|| LiveBackground::fixed(Background::from_image(bg)))
+        }
+        None => LiveBackground::rolling(policy, header.width, header.height, Some(samples_dir)),
     });
-    if let Some(bg) = resumed.background.clone() {
-        lock(&warmup.state).background = Some(Arc::new(Background::from_image(bg)));
-    }
     let mut solver = Incremental::new(
         opts.camera.clone(),
         opts.config.clone(),
@@ -757,6 +661,7 @@ pub fn run(
             let stop = stop.clone();
             let capture_error = capture_error.clone();
             let capture_done = capture_done.clone();
+            let live_background = live_background.clone();
             let recorder = opts.record.then(|| Recorder {
                 dir: scan.recordings.clone(),
                 scan: scan.id.clone(),
@@ -769,7 +674,7 @@ pub fn run(
             std::thread::Builder::new()
                 .name("capture".into())
                 .spawn_scoped(s, move || {
-                    capture_loop(
+                    let frames = capture_loop(
                         source.as_mut(),
                         producer,
                         recorder,
@@ -779,6 +684,7 @@ pub fn run(
                         started,
                         &capture_error,
                     );
+                    live_background.end_at(frames);
                     capture_done.store(true, Ordering::Relaxed);
                 })
                 .map_err(|source| ServeError::Thread {
@@ -791,8 +697,11 @@ pub fn run(
         for w in 0..workers {
             let consumer = consumer.clone();
             let result_tx = result_tx.clone();
-            let (shared, warmup, workers_stop) =
-                (shared.clone(), warmup.clone(), workers_stop.clone());
+            let (shared, live_background, workers_stop) = (
+                shared.clone(),
+                live_background.clone(),
+                workers_stop.clone(),
+            );
             let (camera, params) = (&opts.camera, &opts.config.extract);
             let header = &header;
             std::thread::Builder::new()
@@ -806,7 +715,7 @@ pub fn run(
                         camera,
                         params,
                         &shared,
-                        &warmup,
+                        &live_background,
                         &workers_stop,
                     )
                 })
@@ -894,7 +803,7 @@ pub fn run(
             &results,
             &mut checkpoint,
             &scan,
-            &warmup,
+            &live_background,
             &hub,
             &feed,
             &shared,
@@ -1089,7 +998,7 @@ fn capture_loop(
     first_index: u64,
     started: Instant,
     capture_error: &Mutex<Option<String>>,
-) {
+) -> u64 {
     let lossless = source.lossless();
     let mut index = first_index;
     let mut last_sequence: Option<u32> = None;
@@ -1193,6 +1102,7 @@ fn capture_loop(
     shared
         .device_state
         .store(DeviceState::Stopped as u8, Ordering::Relaxed);
+    index
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -1203,7 +1113,7 @@ fn worker_loop(
     camera: &Camera,
     params: &crate::extract::ExtractParams,
     shared: &Shared,
-    warmup: &Warmup,
+    background: &LiveBackground,
     stop: &AtomicBool,
 ) {
     let Ok(mut extractor) = Extractor::new(params, camera) else {
@@ -1211,18 +1121,13 @@ fn worker_loop(
     };
     let send =
         |meta: FrameMeta, curves: Vec<Curve>| results.send(Extracted { meta, curves }).is_ok();
-    let drain_backlog = |extractor: &mut Extractor, bg: &Background| -> bool {
-        while let Some((m, img)) = warmup.take_backlog() {
-            let curves = img.map_or_else(Vec::new, |i| extractor.extract(&i, bg));
-            if !send(m, curves) {
-                return false;
-            }
-        }
-        true
+    let extract = |extractor: &mut Extractor, (meta, image, bg): background::Ready| {
+        let curves = image.map_or_else(Vec::new, |i| extractor.extract(&i, &bg));
+        send(meta, curves)
     };
     loop {
-        if let Some(bg) = warmup.background() {
-            if !drain_backlog(&mut extractor, &bg) {
+        while let Some(ready) = background.take_ready() {
+            if !extract(&mut extractor, ready) {
                 return;
             }
         }
@@ -1232,29 +1137,12 @@ fn worker_loop(
             Recv::Closed => break,
         };
         let meta = slot.meta;
-        // YUYV once the background is known: straight from the buffer, RGB only where
+        background.begin(meta.index);
+        // YUYV, where no sample is wanted of it: straight from the buffer, RGB only where
         // a stripe can be.
         if &header.fourcc == b"YUYV" {
-            if let Some(bg) = warmup.background() {
-                let stride = if header.bytes_per_line > 0 {
-                    header.bytes_per_line as usize
-                } else {
-                    2 * header.width as usize
-                };
-                let curves = match extractor.extract_yuyv(&slot.bytes, stride, &bg) {
-                    Ok(c) => {
-                        shared.frames_decoded.fetch_add(1, Ordering::Relaxed);
-                        c
-                    }
-                    Err(e) => {
-                        if shared.decode_errors.fetch_add(1, Ordering::Relaxed) == 0 {
-                            tracing::warn!(frame = meta.index, "skipping a YUYV frame: {e}");
-                        } else {
-                            tracing::debug!(frame = meta.index, "skipping a YUYV frame: {e}");
-                        }
-                        Vec::new()
-                    }
-                };
+            if let Some(bg) = background.ready_without_decoding(meta.index) {
+                let curves = yuyv_curves(&mut extractor, &slot.bytes, header, &bg, shared, meta);
                 drop(slot);
                 if !send(meta, curves) {
                     return;
@@ -1262,58 +1150,96 @@ fn worker_loop(
                 continue;
             }
         }
-        let image = match decode_rgb(header, &slot.bytes) {
-            Ok(img) if img.dimensions() == (camera.width, camera.height) => Some(img),
-            Ok(img) => {
-                tracing::warn!(
-                    frame = meta.index,
-                    "frame is {:?}, expected {}x{}",
-                    img.dimensions(),
-                    camera.width,
-                    camera.height
-                );
-                None
-            }
-            Err(e) => {
-                if shared.decode_errors.load(Ordering::Relaxed) == 0 {
-                    tracing::warn!(frame = meta.index, "skipping a frame: {e}");
-                } else {
-                    tracing::debug!(frame = meta.index, "skipping a frame: {e}");
-                }
-                None
-            }
-        };
+        background.keep_sample(meta.index, &slot.bytes);
+        let image = decode_checked(header, &slot.bytes, camera, shared, meta);
         drop(slot);
-        if image.is_some() {
-            shared.frames_decoded.fetch_add(1, Ordering::Relaxed);
-        } else {
-            shared.decode_errors.fetch_add(1, Ordering::Relaxed);
-        }
-        let background = match warmup.background() {
-            Some(b) => b,
-            None if (meta.index as usize) < warmup.need => {
-                if let Some(bg) = warmup.hold(meta, image) {
-                    if !drain_backlog(&mut extractor, &bg) {
-                        return;
-                    }
-                }
-                continue;
+        if let Some(ready) = background.arrive(meta, image) {
+            if !extract(&mut extractor, ready) {
+                return;
             }
-            None => match warmup.wait(stop) {
-                Some(b) => b,
-                None => return,
-            },
-        };
-        let curves = image.map_or_else(Vec::new, |i| extractor.extract(&i, &background));
-        if !send(meta, curves) {
-            return;
         }
     }
-    // The stream ended before the warm-up filled: use what came.
-    let bg = warmup.flush().or_else(|| warmup.background());
-    if let Some(bg) = bg {
-        drain_backlog(&mut extractor, &bg);
+    // The stream ended: the frames still parked wait only for other workers' samples
+    // (or for the capture thread to say how many frames there were).
+    while background.pending() && !stop.load(Ordering::Relaxed) {
+        match background.take_ready() {
+            Some(ready) => {
+                if !extract(&mut extractor, ready) {
+                    return;
+                }
+            }
+            None => std::thread::sleep(Duration::from_millis(5)),
+        }
     }
+}
+
+/// A YUYV frame's curves, extracted from the camera's buffer; an unreadable frame has
+/// none and is counted.
+fn yuyv_curves(
+    extractor: &mut Extractor,
+    bytes: &[u8],
+    header: &DumpHeader,
+    bg: &Background,
+    shared: &Shared,
+    meta: FrameMeta,
+) -> Vec<Curve> {
+    let stride = if header.bytes_per_line > 0 {
+        header.bytes_per_line as usize
+    } else {
+        2 * header.width as usize
+    };
+    match extractor.extract_yuyv(bytes, stride, bg) {
+        Ok(c) => {
+            shared.frames_decoded.fetch_add(1, Ordering::Relaxed);
+            c
+        }
+        Err(e) => {
+            if shared.decode_errors.fetch_add(1, Ordering::Relaxed) == 0 {
+                tracing::warn!(frame = meta.index, "skipping a YUYV frame: {e}");
+            } else {
+                tracing::debug!(frame = meta.index, "skipping a YUYV frame: {e}");
+            }
+            Vec::new()
+        }
+    }
+}
+
+/// A frame decoded to RGB and of the camera's size, or `None` (warned about and
+/// counted).
+fn decode_checked(
+    header: &DumpHeader,
+    bytes: &[u8],
+    camera: &Camera,
+    shared: &Shared,
+    meta: FrameMeta,
+) -> Option<RgbImage> {
+    let image = match decode_rgb(header, bytes) {
+        Ok(img) if img.dimensions() == (camera.width, camera.height) => Some(img),
+        Ok(img) => {
+            tracing::warn!(
+                frame = meta.index,
+                "frame is {:?}, expected {}x{}",
+                img.dimensions(),
+                camera.width,
+                camera.height
+            );
+            None
+        }
+        Err(e) => {
+            if shared.decode_errors.load(Ordering::Relaxed) == 0 {
+                tracing::warn!(frame = meta.index, "skipping a frame: {e}");
+            } else {
+                tracing::debug!(frame = meta.index, "skipping a frame: {e}");
+            }
+            None
+        }
+    };
+    if image.is_some() {
+        shared.frames_decoded.fetch_add(1, Ordering::Relaxed);
+    } else {
+        shared.decode_errors.fetch_add(1, Ordering::Relaxed);
+    }
+    image
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -1322,7 +1248,7 @@ fn solver_loop(
     results: &Receiver<Extracted>,
     checkpoint: &mut Checkpoint,
     scan: &ScanFiles,
-    warmup: &Warmup,
+    background: &LiveBackground,
     hub: &net::Hub,
     feed: &net::StatusFeed,
     shared: &Shared,
@@ -1355,7 +1281,7 @@ fn solver_loop(
         }
         while let Some(e) = pending.remove(&next) {
             if !background_saved {
-                if let Some(bg) = warmup.background() {
+                if let Some(bg) = background.first() {
                     if !scan.state.join("background.png").exists() {
                         checkpoint.save_background(&scan.state, bg.image());
                     }
@@ -1513,28 +1439,6 @@ fn anyhow_like(e: &dyn std::error::Error) -> String {
 mod tests {
     use super::*;
     use crate::capture::dump::DumpReader;
-
-    #[test]
-    fn a_warm_up_of_undecodable_frames_falls_back_to_the_local_background() {
-        let warmup = Warmup {
-            need: 2,
-            size: (64, 48),
-            state: Mutex::new(WarmState::default()),
-            ready: Condvar::new(),
-        };
-        let meta = |index| FrameMeta {
-            index,
-            ..FrameMeta::default()
-        };
-        assert!(warmup.hold(meta(0), None).is_none());
-        let bg = warmup
-            .hold(meta(1), None)
-            .expect("a background once two are held");
-        assert!(bg.is_local());
-        assert_eq!(bg.image().dimensions(), (64, 48));
-        // Both frames wait in the backlog, to be extracted (and counted) as usual.
-        assert!(warmup.take_backlog().is_some() && warmup.take_backlog().is_some());
-    }
 
     #[test]
     fn a_loss_shorter_than_the_status_interval_still_gets_its_line() {

@@ -170,7 +170,7 @@ fn replay_streams_status_and_clients_end_with_the_final_cloud() {
 }
 
 #[test]
-fn one_and_two_workers_give_the_same_cloud() {
+fn one_and_two_workers_and_reconstruct_give_the_same_cloud() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let mut clouds = Vec::new();
     for workers in ["1", "2"] {
@@ -186,6 +186,17 @@ fn one_and_two_workers_give_the_same_cloud() {
     }
     assert!(clouds[0].len() > 10_000);
     assert!(same_cloud(&clouds[0], &clouds[1]), "clouds differ");
+    // One pipeline, one background policy: `reconstruct` of the same dump gives the
+    // same cloud, point for point.
+    let offline = tmp.path().join("offline.ply");
+    run_ok(&mut crate::util::reconstruct(&dump(), &camera(), &offline));
+    let offline = read_ply(&offline).expect("reconstruct's cloud");
+    assert!(
+        same_cloud(&clouds[1], &offline),
+        "serve: {} points, reconstruct: {}",
+        clouds[1].len(),
+        offline.len()
+    );
 }
 
 #[test]

@@ -55,8 +55,8 @@ pub struct Args {
     /// default), blue-green, or one laser: red, green or blue.
     #[arg(long, value_name = "PAIR")]
     lasers: Option<String>,
-    /// A laser-off frame of the same view; without it the background is the temporal
-    /// median of frames sampled over the sequence.
+    /// A laser-off frame of the same view; without it the background is a rolling
+    /// temporal median of sampled frames, the one `serve` uses (`[background]`).
     #[arg(long, value_name = "FILE")]
     background: Option<PathBuf>,
     /// Write a JSON report: counts, residuals, focal estimate, time per stage.

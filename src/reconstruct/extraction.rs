@@ -1,0 +1,137 @@
+//! Extraction over a recording: the background policy applied block by block, then
+//! every frame's curves in parallel. Owns [`extract_frames`] and its result; the policy
+//! itself is [`crate::extract::rolling`], the one `serve` applies too.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use image::RgbImage;
+use rayon::prelude::*;
+
+use super::{decode, FrameSource, Progress, ReconstructError, Skipped};
+use crate::camera::Camera;
+use crate::config::Config;
+use crate::extract::rolling::{Policy, Rolling};
+use crate::extract::{Background, Curve, Extractor};
+
+/// The curves of every frame of a recording, as [`super::reconstruct_files`] extracts
+/// them.
+pub struct Extracted {
+    /// Per frame (skipped frames have none), in frame order.
+    pub per_frame: Vec<Vec<Curve>>,
+    /// The first frames' background: the laser-off frame, or the rolling median's
+    /// first version. Points take their colour from it.
+    pub background: Arc<Background>,
+    /// Frames that could not be decoded and were skipped.
+    pub frames_skipped: usize,
+    /// Seconds spent making the rolling median's versions.
+    pub background_s: f64,
+    pub extract_s: f64,
+}
+
+/// One block's frames: their curves, and the images of the policy's samples.
+type Block = Vec<(Vec<Curve>, Option<RgbImage>)>;
+
+/// The background policy and extraction over a recording: the laser-off frame
+/// `background`, or else the rolling temporal median ([`crate::extract::rolling`]),
+/// taken block by block (a block is the frames of one version of the median), every
+/// frame of a block in parallel. Undecodable frames are skipped and counted.
+pub fn extract_frames(
+    frames: &FrameSource,
+    background: Option<&Path>,
+    camera: &Camera,
+    config: &Config,
+    progress: &dyn Progress,
+) -> Result<Extracted, ReconstructError> {
+    let t = Instant::now();
+    let fixed = background
+        .map(|p| decode(p, camera).map(|i| Arc::new(Background::from_image(i))))
+        .transpose()?;
+    let policy = Policy::new(&config.background)?;
+    let mut rolling = Rolling::new(policy, camera.width, camera.height);
+    rolling.end_at(frames.len());
+    // Validate the parameters once; every worker thread then builds its own extractor
+    // (they own their scratch buffers), which cannot fail any more.
+    Extractor::new(&config.extract, camera)?;
+    let (n, done, skipped) = (frames.len(), AtomicUsize::new(0), Skipped::default());
+    let mut pass = frames.pass(camera)?;
+    let (mut per_frame, mut first_bg, mut background_s) = (Vec::with_capacity(n), None, 0.0);
+    let mut v = 0;
+    while per_frame.len() < n {
+        let wanted: Vec<usize> = (policy.start_of(v)..policy.end_of(v).min(n)).collect();
+        let extract_one =
+            |ex: &mut Option<Extractor>, image: Option<&RgbImage>, bg: &Background| {
+                let ex = ex
+                    .as_mut()
+                    .ok_or(ReconstructError::Internal("extractor construction failed"))?;
+                let curves = image.map_or_else(Vec::new, |img| ex.extract(img, bg));
+                progress.update("extract", done.fetch_add(1, Ordering::Relaxed) + 1, n);
+                Ok::<_, ReconstructError>(curves)
+            };
+        let init = || Extractor::new(&config.extract, camera).ok();
+        let t_bg = Instant::now();
+        let ready = fixed.clone().or_else(|| rolling.version(v));
+        background_s += t_bg.elapsed().as_secs_f64();
+        let block: Block = match ready {
+            Some(bg) => {
+                first_bg.get_or_insert_with(|| bg.clone());
+                pass.map_frames(&wanted, init, |ex, i, r| {
+                    let image = skipped.filter(i, r)?;
+                    let curves = extract_one(ex, image.as_ref(), &bg)?;
+                    Ok((curves, image.filter(|_| policy.is_sample(i))))
+                })?
+            }
+            // The warm-up: its own samples make its background, so the block is
+            // decoded first.
+            None => {
+                let images = pass.map_frames(&wanted, || (), |_, i, r| skipped.filter(i, r))?;
+                for (&i, image) in wanted.iter().zip(&images) {
+                    rolling.offer(i, image.as_ref());
+                }
+                if images.len() < wanted.len() {
+                    rolling.end_at(wanted[0] + images.len());
+                }
+                let t_bg = Instant::now();
+                let bg = rolling.version(v).ok_or(ReconstructError::Internal(
+                    "the warm-up background lacks a sample after its block",
+                ))?;
+                background_s += t_bg.elapsed().as_secs_f64();
+                first_bg.get_or_insert_with(|| bg.clone());
+                images
+                    .into_par_iter()
+                    .map_init(init, |ex, image| {
+                        Ok((extract_one(ex, image.as_ref(), &bg)?, None))
+                    })
+                    .collect::<Result<_, ReconstructError>>()?
+            }
+        };
+        let ended = block.len() < wanted.len();
+        // (The warm-up's samples were offered before its block; offering again is a
+        // no-op.)
+        for (&i, (curves, sample)) in wanted.iter().zip(block) {
+            rolling.offer(i, sample.as_ref());
+            per_frame.push(curves);
+        }
+        rolling.forget_before(policy.end_of(v));
+        if ended {
+            // A video cut off: the frames it promised and did not hold have no curves.
+            per_frame.resize_with(n, Vec::new);
+        }
+        v += 1;
+    }
+    let frames_skipped = skipped.count();
+    if frames_skipped > 0 {
+        tracing::warn!("{frames_skipped} of {n} frames could not be decoded and were skipped");
+    }
+    let background =
+        first_bg.unwrap_or_else(|| Arc::new(Background::local(camera.width, camera.height)));
+    Ok(Extracted {
+        per_frame,
+        background,
+        frames_skipped,
+        background_s,
+        extract_s: t.elapsed().as_secs_f64() - background_s,
+    })
+}
