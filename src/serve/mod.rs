@@ -34,6 +34,7 @@ pub mod net;
 pub mod notify;
 pub mod status;
 pub mod stream;
+mod threads;
 pub mod web;
 
 use std::collections::BTreeMap;
@@ -42,18 +43,17 @@ use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use crossbeam_channel::{bounded, Receiver, RecvTimeoutError, Sender};
-use image::RgbImage;
+use crossbeam_channel::{bounded, Receiver, RecvTimeoutError};
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
 use crate::capture::dump::{decode_rgb, DumpHeader, DumpWriter};
-use crate::capture::{CaptureError, FrameSource, Next};
+use crate::capture::FrameSource;
 use crate::cloud::ScaleMode;
 use crate::config::Config;
 use crate::extract::rolling::Policy;
 use crate::extract::{Background, Curve, Extractor};
-use crate::ring::{self, FrameMeta, Recv, Slot};
+use crate::ring::{self, FrameMeta};
 
 use background::LiveBackground;
 use checkpoint::{Checkpoint, CheckpointWriter, FrameCurves};
@@ -674,7 +674,7 @@ pub fn run(
             std::thread::Builder::new()
                 .name("capture".into())
                 .spawn_scoped(s, move || {
-                    let frames = capture_loop(
+                    let frames = threads::capture_loop(
                         source.as_mut(),
                         producer,
                         recorder,
@@ -708,7 +708,7 @@ pub fn run(
                 .name(format!("extract-{w}"))
                 .stack_size(WORKER_STACK_BYTES)
                 .spawn_scoped(s, move || {
-                    worker_loop(
+                    threads::worker_loop(
                         consumer,
                         result_tx,
                         header,
@@ -986,260 +986,6 @@ pub fn cpu_seconds() -> f64 {
             Some((ut + st) / 100.0)
         })
         .unwrap_or(0.0)
-}
-
-#[allow(clippy::too_many_arguments)]
-fn capture_loop(
-    source: &mut dyn FrameSource,
-    producer: ring::Producer,
-    mut recorder: Option<Recorder>,
-    shared: &Shared,
-    stop: &AtomicBool,
-    first_index: u64,
-    started: Instant,
-    capture_error: &Mutex<Option<String>>,
-) -> u64 {
-    let lossless = source.lossless();
-    let mut index = first_index;
-    let mut last_sequence: Option<u32> = None;
-    shared
-        .device_state
-        .store(DeviceState::Streaming as u8, Ordering::Relaxed);
-    while !stop.load(Ordering::Relaxed) {
-        shared.capture_beats.fetch_add(1, Ordering::Relaxed);
-        shared
-            .ring_depth
-            .store(producer.depth() as u64, Ordering::Relaxed);
-        if let Some(warning) = source.take_warning() {
-            *lock(&shared.last_error) = Some(warning);
-        }
-        let frame = match source.next(Duration::from_millis(100)) {
-            Ok(Next::Frame(f)) => f,
-            Ok(Next::Idle) => continue,
-            Ok(Next::Lost(why)) => {
-                tracing::warn!("camera lost: {why}; retrying");
-                *lock(&shared.last_error) = Some(format!("device lost: {why}"));
-                shared
-                    .device_state
-                    .store(DeviceState::Lost as u8, Ordering::Relaxed);
-                shared.device_losses.fetch_add(1, Ordering::Relaxed);
-                last_sequence = None;
-                continue;
-            }
-            Ok(Next::Resumed) => {
-                tracing::info!("camera back; the scan continues");
-                shared
-                    .device_state
-                    .store(DeviceState::Streaming as u8, Ordering::Relaxed);
-                continue;
-            }
-            Ok(Next::End) => break,
-            Err(e) => {
-                let msg = match &e {
-                    CaptureError::Dump(d) => d.to_string(),
-                    other => other.to_string(),
-                };
-                tracing::error!("capture stopped: {msg}");
-                *lock(capture_error) = Some(msg.clone());
-                *lock(&shared.last_error) = Some(msg);
-                break;
-            }
-        };
-        let received_nanos = started.elapsed().as_nanos() as u64;
-        shared.frames_in.fetch_add(1, Ordering::Relaxed);
-        if let Some(last) = last_sequence {
-            let gap = frame.sequence.wrapping_sub(last).wrapping_sub(1);
-            if gap > 0 && gap < 1 << 30 {
-                shared
-                    .frames_dropped_driver
-                    .fetch_add(u64::from(gap), Ordering::Relaxed);
-            }
-        }
-        last_sequence = Some(frame.sequence);
-        if let Some(r) = recorder.as_mut() {
-            r.write(
-                shared,
-                frame.sequence,
-                frame.timestamp_nanos,
-                frame.flags,
-                frame.bytes,
-            );
-        }
-        let slot = if lossless {
-            let mut slot = None;
-            while slot.is_none() && !stop.load(Ordering::Relaxed) {
-                shared.capture_beats.fetch_add(1, Ordering::Relaxed);
-                slot = producer.claim_timeout(Duration::from_millis(100));
-            }
-            slot
-        } else {
-            producer.try_claim()
-        };
-        let Some(mut slot): Option<Slot> = slot else {
-            shared.frames_dropped_ring.fetch_add(1, Ordering::Relaxed);
-            tracing::trace!(sequence = frame.sequence, "ring full: frame dropped");
-            continue;
-        };
-        slot.fill(
-            FrameMeta {
-                index,
-                sequence: frame.sequence,
-                timestamp_nanos: frame.timestamp_nanos,
-                flags: frame.flags,
-                source_position: frame.position,
-                received_nanos,
-            },
-            frame.bytes,
-        );
-        index += 1;
-        if producer.publish(slot).is_err() {
-            break;
-        }
-    }
-    if let Some(w) = recorder.and_then(|r| r.writer) {
-        let _ = w.finish();
-    }
-    shared
-        .device_state
-        .store(DeviceState::Stopped as u8, Ordering::Relaxed);
-    index
-}
-
-#[allow(clippy::too_many_arguments)]
-fn worker_loop(
-    consumer: ring::Consumer,
-    results: Sender<Extracted>,
-    header: &DumpHeader,
-    camera: &Camera,
-    params: &crate::extract::ExtractParams,
-    shared: &Shared,
-    background: &LiveBackground,
-    stop: &AtomicBool,
-) {
-    let Ok(mut extractor) = Extractor::new(params, camera) else {
-        return;
-    };
-    let send =
-        |meta: FrameMeta, curves: Vec<Curve>| results.send(Extracted { meta, curves }).is_ok();
-    let extract = |extractor: &mut Extractor, (meta, image, bg): background::Ready| {
-        let curves = image.map_or_else(Vec::new, |i| extractor.extract(&i, &bg));
-        send(meta, curves)
-    };
-    loop {
-        while let Some(ready) = background.take_ready() {
-            if !extract(&mut extractor, ready) {
-                return;
-            }
-        }
-        let slot = match consumer.recv_timeout(Duration::from_millis(100)) {
-            Recv::Frame(s) => s,
-            Recv::Idle => continue,
-            Recv::Closed => break,
-        };
-        let meta = slot.meta;
-        background.begin(meta.index);
-        // YUYV, where no sample is wanted of it: straight from the buffer, RGB only where
-        // a stripe can be.
-        if &header.fourcc == b"YUYV" {
-            if let Some(bg) = background.ready_without_decoding(meta.index) {
-                let curves = yuyv_curves(&mut extractor, &slot.bytes, header, &bg, shared, meta);
-                drop(slot);
-                if !send(meta, curves) {
-                    return;
-                }
-                continue;
-            }
-        }
-        background.keep_sample(meta.index, &slot.bytes);
-        let image = decode_checked(header, &slot.bytes, camera, shared, meta);
-        drop(slot);
-        if let Some(ready) = background.arrive(meta, image) {
-            if !extract(&mut extractor, ready) {
-                return;
-            }
-        }
-    }
-    // The stream ended: the frames still parked wait only for other workers' samples
-    // (or for the capture thread to say how many frames there were).
-    while background.pending() && !stop.load(Ordering::Relaxed) {
-        match background.take_ready() {
-            Some(ready) => {
-                if !extract(&mut extractor, ready) {
-                    return;
-                }
-            }
-            None => std::thread::sleep(Duration::from_millis(5)),
-        }
-    }
-}
-
-/// A YUYV frame's curves, extracted from the camera's buffer; an unreadable frame has
-/// none and is counted.
-fn yuyv_curves(
-    extractor: &mut Extractor,
-    bytes: &[u8],
-    header: &DumpHeader,
-    bg: &Background,
-    shared: &Shared,
-    meta: FrameMeta,
-) -> Vec<Curve> {
-    let stride = if header.bytes_per_line > 0 {
-        header.bytes_per_line as usize
-    } else {
-        2 * header.width as usize
-    };
-    match extractor.extract_yuyv(bytes, stride, bg) {
-        Ok(c) => {
-            shared.frames_decoded.fetch_add(1, Ordering::Relaxed);
-            c
-        }
-        Err(e) => {
-            if shared.decode_errors.fetch_add(1, Ordering::Relaxed) == 0 {
-                tracing::warn!(frame = meta.index, "skipping a YUYV frame: {e}");
-            } else {
-                tracing::debug!(frame = meta.index, "skipping a YUYV frame: {e}");
-            }
-            Vec::new()
-        }
-    }
-}
-
-/// A frame decoded to RGB and of the camera's size, or `None` (warned about and
-/// counted).
-fn decode_checked(
-    header: &DumpHeader,
-    bytes: &[u8],
-    camera: &Camera,
-    shared: &Shared,
-    meta: FrameMeta,
-) -> Option<RgbImage> {
-    let image = match decode_rgb(header, bytes) {
-        Ok(img) if img.dimensions() == (camera.width, camera.height) => Some(img),
-        Ok(img) => {
-            tracing::warn!(
-                frame = meta.index,
-                "frame is {:?}, expected {}x{}",
-                img.dimensions(),
-                camera.width,
-                camera.height
-            );
-            None
-        }
-        Err(e) => {
-            if shared.decode_errors.load(Ordering::Relaxed) == 0 {
-                tracing::warn!(frame = meta.index, "skipping a frame: {e}");
-            } else {
-                tracing::debug!(frame = meta.index, "skipping a frame: {e}");
-            }
-            None
-        }
-    };
-    if image.is_some() {
-        shared.frames_decoded.fetch_add(1, Ordering::Relaxed);
-    } else {
-        shared.decode_errors.fetch_add(1, Ordering::Relaxed);
-    }
-    image
 }
 
 #[allow(clippy::too_many_arguments)]
