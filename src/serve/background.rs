@@ -24,6 +24,7 @@ use std::sync::{Arc, Mutex};
 
 use image::RgbImage;
 
+use crate::capture::dump::{decode_rgb, DumpHeader};
 use crate::extract::rolling::{Policy, Rolling};
 use crate::extract::Background;
 use crate::ring::FrameMeta;
@@ -73,6 +74,26 @@ impl LiveBackground {
             }
         });
         Self::with(Some(Rolling::new(policy, width, height)), None, samples_dir)
+    }
+
+    /// The background of a scan starting at frame `first_index`: a new scan's rolling
+    /// median, or a resumed one's from its kept samples (with its saved background, if
+    /// it kept none, for every frame).
+    pub(super) fn for_scan(
+        policy: Policy,
+        header: &DumpHeader,
+        samples_dir: &Path,
+        saved: Option<RgbImage>,
+        first_index: u64,
+    ) -> Self {
+        let size = (header.width, header.height);
+        let Some(saved) = saved else {
+            return Self::rolling(policy, size.0, size.1, Some(samples_dir.to_path_buf()));
+        };
+        let decode = |b: &[u8]| decode_rgb(header, b).ok();
+        let first = Background::from_image(saved.clone());
+        Self::resume(policy, size, samples_dir, first_index, first, decode)
+            .unwrap_or_else(|| Self::fixed(Background::from_image(saved)))
     }
 
     /// One background for every frame (a resumed scan's saved one).

@@ -47,12 +47,12 @@ use crossbeam_channel::{bounded, Receiver, RecvTimeoutError};
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
-use crate::capture::dump::{decode_rgb, DumpHeader, DumpWriter};
+use crate::capture::dump::{DumpHeader, DumpWriter};
 use crate::capture::FrameSource;
 use crate::cloud::ScaleMode;
 use crate::config::Config;
 use crate::extract::rolling::Policy;
-use crate::extract::{Background, Curve, Extractor};
+use crate::extract::{Curve, Extractor};
 use crate::ring::{self, FrameMeta};
 
 use background::LiveBackground;
@@ -259,6 +259,39 @@ pub struct ServeReport {
     pub solve_error: Option<String>,
 }
 
+impl ServeReport {
+    /// The counters of a run, everything else empty.
+    fn counted(scan: &str, input: &str, shared: &Shared, hub: &net::Hub, started: Instant) -> Self {
+        let n = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        Self {
+            version: REPORT_VERSION,
+            scan: scan.to_string(),
+            input: input.to_string(),
+            resumed_frames: 0,
+            frames_in: n(&shared.frames_in),
+            frames_dropped_ring: n(&shared.frames_dropped_ring),
+            frames_dropped_driver: n(&shared.frames_dropped_driver),
+            decode_errors: n(&shared.decode_errors),
+            frames_processed: n(&shared.frames_processed),
+            epochs: 0,
+            cloud: PathBuf::new(),
+            points: 0,
+            latency: hub.stats.latency(),
+            solver_frame: net::Latency::of_micros(lock(&shared.solver_frame_micros).clone()),
+            live_solver: *lock(&shared.live_solver),
+            stream_clients_total: hub.stats.clients_total.load(Ordering::Relaxed),
+            stream_resyncs: hub.stats.resyncs.load(Ordering::Relaxed),
+            stream_dropped_clients: hub.stats.dropped_clients.load(Ordering::Relaxed),
+            cpu_seconds: 0.0,
+            wall_seconds: started.elapsed().as_secs_f64(),
+            capture_error: None,
+            checkpoint_error: None,
+            reconstruction: None,
+            solve_error: None,
+        }
+    }
+}
+
 pub const REPORT_VERSION: u32 = 1;
 
 /// Stack of the extraction and solver threads: the detector's and the median's
@@ -454,6 +487,55 @@ impl Recorder {
     }
 }
 
+/// A resumed scan's checkpoint (nothing for a new scan), its state said in the log.
+fn resume_scan(
+    scan: &ScanFiles,
+    resumed: bool,
+    width: u32,
+    height: u32,
+) -> Result<checkpoint::Resumed, ServeError> {
+    if !resumed {
+        return Ok(checkpoint::Resumed {
+            background: None,
+            frames: Vec::new(),
+            stopped: None,
+        });
+    }
+    let r = checkpoint::resume(&scan.state, width, height)?;
+    if let Some(why) = &r.stopped {
+        tracing::warn!("checkpoint ended early ({why}); those frames are processed again");
+    }
+    tracing::info!(
+        scan = %scan.id,
+        frames = r.frames.len(),
+        "resuming the unfinished scan from its checkpoint"
+    );
+    Ok(r)
+}
+
+/// The bytes of one ring slot for frames of `header`, refused when a frame has no
+/// bounded size or the ring would need more than [`MAX_RING_BYTES`].
+fn ring_slot_bytes(header: &DumpHeader, ring_slots: usize) -> Result<usize, ServeError> {
+    crate::capture::dump::frame_capacity(header)
+        .filter(|b| b.saturating_mul(ring_slots.max(2)) <= MAX_RING_BYTES)
+        .ok_or_else(|| ServeError::FrameSize {
+            header: format!(
+                "{} {}x{}, {} bytes per line",
+                String::from_utf8_lossy(&header.fourcc),
+                header.width,
+                header.height,
+                header.bytes_per_line
+            ),
+            message: crate::capture::dump::check_frame_size(header)
+                .err()
+                .unwrap_or_else(|| {
+                    format!(
+                        "[serve] ring_slots = {ring_slots} of them need more than {MAX_RING_BYTES} bytes"
+                    )
+                }),
+        })
+}
+
 /// Runs the daemon on `source` until it ends or `stop` is set.
 pub fn run(
     mut source: Box<dyn FrameSource>,
@@ -474,25 +556,7 @@ pub fn run(
     }
     Extractor::new(&opts.config.extract, &opts.camera)?;
     // Sizes first: nothing is allocated or touched for a stream we cannot buffer.
-    let slot_bytes = crate::capture::dump::frame_capacity(&header)
-        .filter(|b| b.saturating_mul(cfg.ring_slots.max(2)) <= MAX_RING_BYTES)
-        .ok_or_else(|| ServeError::FrameSize {
-            header: format!(
-                "{} {}x{}, {} bytes per line",
-                String::from_utf8_lossy(&header.fourcc),
-                header.width,
-                header.height,
-                header.bytes_per_line
-            ),
-            message: crate::capture::dump::check_frame_size(&header)
-                .err()
-                .unwrap_or_else(|| {
-                    format!(
-                        "[serve] ring_slots = {} of them need more than {MAX_RING_BYTES} bytes",
-                        cfg.ring_slots
-                    )
-                }),
-        })?;
+    let slot_bytes = ring_slot_bytes(&header, cfg.ring_slots)?;
     // Then the lock, before reading or moving anything in out_dir: a second daemon on
     // the same directory would append to the same log and replace the sockets.
     let _lock = lock_out_dir(&opts.out_dir)?;
@@ -500,27 +564,8 @@ pub fn run(
     // they are written, so that clients exhausting the limit cannot lose the scan.
     let mut reserve = FdReserve::new(RESERVED_FDS);
     let (scan, resumed_scan) = open_scan(&opts, header.width, header.height)?;
-    let resumed = if resumed_scan {
-        checkpoint::resume(&scan.state, header.width, header.height)?
-    } else {
-        checkpoint::Resumed {
-            background: None,
-            frames: Vec::new(),
-            stopped: None,
-        }
-    };
-    if let Some(why) = &resumed.stopped {
-        tracing::warn!("checkpoint ended early ({why}); those frames are processed again");
-    }
+    let resumed = resume_scan(&scan, resumed_scan, header.width, header.height)?;
     let resumed_frames = resumed.frames.len() as u64;
-    if resumed_scan {
-        tracing::info!(
-            scan = %scan.id,
-            frames = resumed_frames,
-            "resuming the unfinished scan from its checkpoint"
-        );
-    }
-
     // Sockets first, so a bad address fails before any work.
     let none_if_empty = |s: &str| (!s.is_empty()).then(|| s.to_string());
     let endpoints = net::Endpoints {
@@ -567,18 +612,13 @@ pub fn run(
     .min(MAX_WORKERS);
     let (producer, consumer) = ring::ring(cfg.ring_slots.max(2), slot_bytes);
     let (result_tx, result_rx) = bounded::<Extracted>(2 * workers + 2);
-    let policy = Policy::new(&opts.config.background)?;
-    let samples_dir = scan.state.join("samples");
-    let live_background = Arc::new(match resumed.background.clone() {
-        Some(bg) => {
-            let decode = |b: &[u8]| decode_rgb(&header, b).ok();
-            let size = (header.width, header.height);
-            let first = Background::from_image(bg.clone());
-            LiveBackground::resume(policy, size, &samples_dir, resumed_frames, first, decode)
-                .unwrap_or_else(|| LiveBackground::fixed(Background::from_image(bg)))
-        }
-        None => LiveBackground::rolling(policy, header.width, header.height, Some(samples_dir)),
-    });
+    let live_background = Arc::new(LiveBackground::for_scan(
+        Policy::new(&opts.config.background)?,
+        &header,
+        &scan.state.join("samples"),
+        resumed.background.clone(),
+        resumed_frames,
+    ));
     let mut solver = Incremental::new(
         opts.camera.clone(),
         opts.config.clone(),
@@ -743,51 +783,16 @@ pub fn run(
             std::thread::Builder::new()
                 .name("status".into())
                 .spawn_scoped(s, move || {
-                    let mut last_beats = (u64::MAX, u64::MAX);
-                    let mut ready = false;
-                    let mut last_ping = Instant::now();
-                    let mut seen_losses = 0;
-                    while !status_stop.load(Ordering::Relaxed) {
-                        let losses = shared.device_losses.load(Ordering::Relaxed);
-                        let st = Status::gather(&shared, &hub, &scan_id, started);
-                        if !ready && st.device == DeviceState::Streaming {
-                            notifier.notify("READY=1");
-                            ready = true;
-                        }
-                        for line in status_lines(&st, losses != seen_losses) {
-                            notifier.notify(&format!("STATUS={}", line.summary()));
-                            feed.publish(line.to_line());
-                        }
-                        seen_losses = losses;
-                        // The watchdog hears from the pipeline's progress: both the
-                        // capture loop and the solver loop must have turned since the
-                        // last ping (they turn at least every 100 ms while alive).
-                        let beats = (
-                            shared.capture_beats.load(Ordering::Relaxed),
-                            shared.solver_beats.load(Ordering::Relaxed),
-                        );
-                        let capture_alive =
-                            beats.0 != last_beats.0 || capture_done.load(Ordering::Relaxed);
-                        if let Some(every) = notifier.watchdog_every {
-                            if capture_alive
-                                && beats.1 != last_beats.1
-                                && last_ping.elapsed() >= every / 2
-                            {
-                                notifier.notify("WATCHDOG=1");
-                                last_ping = Instant::now();
-                            }
-                        }
-                        last_beats = beats;
-                        // A change of the device's state is published at once.
-                        let t = Instant::now();
-                        while t.elapsed() < interval
-                            && !status_stop.load(Ordering::Relaxed)
-                            && shared.device_losses.load(Ordering::Relaxed) == seen_losses
-                            && shared.device_state.load(Ordering::Relaxed) == st.device as u8
-                        {
-                            std::thread::sleep(Duration::from_millis(20));
-                        }
-                    }
+                    let st = threads::StatusThread {
+                        shared: &shared,
+                        hub: &hub,
+                        feed: &feed,
+                        notifier,
+                        scan_id: &scan_id,
+                        started,
+                        interval,
+                    };
+                    st.run(&status_stop, &capture_done)
                 })
                 .map_err(|source| ServeError::Thread {
                     name: "status".into(),
@@ -844,30 +849,16 @@ pub fn run(
         tracing::warn!("cannot move {} aside: {e}", scan.state.display());
     }
     let report = ServeReport {
-        version: REPORT_VERSION,
-        scan: scan.id.clone(),
-        input: opts.input_id.clone(),
         resumed_frames,
-        frames_in: shared.frames_in.load(Ordering::Relaxed),
-        frames_dropped_ring: shared.frames_dropped_ring.load(Ordering::Relaxed),
-        frames_dropped_driver: shared.frames_dropped_driver.load(Ordering::Relaxed),
-        decode_errors: shared.decode_errors.load(Ordering::Relaxed),
-        frames_processed: shared.frames_processed.load(Ordering::Relaxed),
         epochs: solver.epoch(),
         cloud: scan.cloud.clone(),
         points,
-        latency: hub.stats.latency(),
-        solver_frame: net::Latency::of_micros(lock(&shared.solver_frame_micros).clone()),
-        live_solver: *lock(&shared.live_solver),
-        stream_clients_total: hub.stats.clients_total.load(Ordering::Relaxed),
-        stream_resyncs: hub.stats.resyncs.load(Ordering::Relaxed),
-        stream_dropped_clients: hub.stats.dropped_clients.load(Ordering::Relaxed),
         cpu_seconds: cpu_seconds() - cpu_start,
-        wall_seconds: started.elapsed().as_secs_f64(),
         capture_error: lock(&capture_error).clone(),
         checkpoint_error: checkpoint.error().map(str::to_string),
         reconstruction: rec,
         solve_error,
+        ..ServeReport::counted(&scan.id, &opts.input_id, &shared, &hub, started)
     };
     if report.decode_errors > 0 {
         tracing::warn!(

@@ -11,8 +11,8 @@ use crossbeam_channel::Sender;
 use image::RgbImage;
 
 use super::background::{self, LiveBackground};
-use super::status::DeviceState;
-use super::{lock, Extracted, Recorder, Shared};
+use super::status::{DeviceState, Status};
+use super::{lock, net, notify, status_lines, Extracted, Recorder, Shared};
 use crate::camera::Camera;
 use crate::capture::dump::{decode_rgb, DumpHeader};
 use crate::capture::{CaptureError, FrameSource, Next};
@@ -271,4 +271,64 @@ fn decode_checked(
         shared.decode_errors.fetch_add(1, Ordering::Relaxed);
     }
     image
+}
+
+/// What the `status` thread reads and where it tells it.
+pub(super) struct StatusThread<'a> {
+    pub shared: &'a Shared,
+    pub hub: &'a net::Hub,
+    pub feed: &'a net::StatusFeed,
+    pub notifier: &'a notify::Notifier,
+    pub scan_id: &'a str,
+    pub started: Instant,
+    pub interval: Duration,
+}
+
+impl StatusThread<'_> {
+    /// Publishes a status line every interval and on events, and talks to systemd
+    /// (`READY`, `STATUS`, `WATCHDOG` from pipeline progress), until `stop`.
+    pub(super) fn run(&self, stop: &AtomicBool, capture_done: &AtomicBool) {
+        let shared = self.shared;
+        let mut last_beats = (u64::MAX, u64::MAX);
+        let mut ready = false;
+        let mut last_ping = Instant::now();
+        let mut seen_losses = 0;
+        while !stop.load(Ordering::Relaxed) {
+            let losses = shared.device_losses.load(Ordering::Relaxed);
+            let st = Status::gather(shared, self.hub, self.scan_id, self.started);
+            if !ready && st.device == DeviceState::Streaming {
+                self.notifier.notify("READY=1");
+                ready = true;
+            }
+            for line in status_lines(&st, losses != seen_losses) {
+                self.notifier.notify(&format!("STATUS={}", line.summary()));
+                self.feed.publish(line.to_line());
+            }
+            seen_losses = losses;
+            // The watchdog hears from the pipeline's progress: both the capture loop
+            // and the solver loop must have turned since the last ping (they turn at
+            // least every 100 ms while alive).
+            let beats = (
+                shared.capture_beats.load(Ordering::Relaxed),
+                shared.solver_beats.load(Ordering::Relaxed),
+            );
+            let capture_alive = beats.0 != last_beats.0 || capture_done.load(Ordering::Relaxed);
+            if let Some(every) = self.notifier.watchdog_every {
+                if capture_alive && beats.1 != last_beats.1 && last_ping.elapsed() >= every / 2 {
+                    self.notifier.notify("WATCHDOG=1");
+                    last_ping = Instant::now();
+                }
+            }
+            last_beats = beats;
+            // A change of the device's state is published at once.
+            let t = Instant::now();
+            while t.elapsed() < self.interval
+                && !stop.load(Ordering::Relaxed)
+                && shared.device_losses.load(Ordering::Relaxed) == seen_losses
+                && shared.device_state.load(Ordering::Relaxed) == st.device as u8
+            {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        }
+    }
 }
