@@ -657,6 +657,7 @@ pub fn run(
     let capture_error: Arc<Mutex<Option<String>>> = Arc::new(Mutex::new(None));
 
     let mut report = None;
+    let capture_done = Arc::new(AtomicBool::new(false));
     let scope_result: Result<(), ServeError> = std::thread::scope(|s| {
         // Sockets.
         let net_handle = {
@@ -695,75 +696,35 @@ pub fn run(
         };
 
         // Capture.
-        let capture_done = Arc::new(AtomicBool::new(false));
-        {
-            let shared = shared.clone();
-            let stop = stop.clone();
-            let capture_error = capture_error.clone();
-            let capture_done = capture_done.clone();
-            let live_background = live_background.clone();
-            let recorder = opts.record.then(|| Recorder {
-                dir: scan.recordings.clone(),
-                scan: scan.id.clone(),
-                header: header.clone(),
-                rotate_bytes: cfg.record_rotate_mib.max(1) << 20,
-                part: 0,
-                writer: None,
-            });
-            let first_index = resumed_frames;
-            std::thread::Builder::new()
-                .name("capture".into())
-                .spawn_scoped(s, move || {
-                    let frames = threads::capture_loop(
-                        source.as_mut(),
-                        producer,
-                        recorder,
-                        &shared,
-                        &stop,
-                        first_index,
-                        started,
-                        &capture_error,
-                    );
-                    live_background.end_at(frames);
-                    capture_done.store(true, Ordering::Relaxed);
-                })
-                .map_err(|source| ServeError::Thread {
-                    name: "capture".into(),
-                    source,
-                })?;
-        }
+        let recorder = opts.record.then(|| Recorder {
+            dir: scan.recordings.clone(),
+            scan: scan.id.clone(),
+            header: header.clone(),
+            rotate_bytes: cfg.record_rotate_mib.max(1) << 20,
+            part: 0,
+            writer: None,
+        });
+        let capture = threads::Capture {
+            shared: &shared,
+            stop: &stop,
+            first_index: resumed_frames,
+            started,
+            error: &capture_error,
+            background: &live_background,
+            done: &capture_done,
+        };
+        capture.spawn(s, source.as_mut(), producer, recorder)?;
 
         // Workers.
-        for w in 0..workers {
-            let consumer = consumer.clone();
-            let result_tx = result_tx.clone();
-            let (shared, live_background, workers_stop) = (
-                shared.clone(),
-                live_background.clone(),
-                workers_stop.clone(),
-            );
-            let (camera, params) = (&opts.camera, &opts.config.extract);
-            let header = &header;
-            std::thread::Builder::new()
-                .name(format!("extract-{w}"))
-                .stack_size(WORKER_STACK_BYTES)
-                .spawn_scoped(s, move || {
-                    threads::worker_loop(
-                        consumer,
-                        result_tx,
-                        header,
-                        camera,
-                        params,
-                        &shared,
-                        &live_background,
-                        &workers_stop,
-                    )
-                })
-                .map_err(|source| ServeError::Thread {
-                    name: format!("extract-{w}"),
-                    source,
-                })?;
-        }
+        let ctx = threads::WorkerContext {
+            header: &header,
+            camera: &opts.camera,
+            params: &opts.config.extract,
+            shared: &shared,
+            background: &live_background,
+            stop: &workers_stop,
+        };
+        threads::spawn_workers(s, workers, &consumer, &result_tx, ctx)?;
         drop(consumer);
         drop(result_tx);
 

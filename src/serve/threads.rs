@@ -12,24 +12,70 @@ use image::RgbImage;
 
 use super::background::{self, LiveBackground};
 use super::status::{DeviceState, Status};
-use super::{lock, net, notify, status_lines, Extracted, Recorder, Shared};
+use super::{
+    lock, net, notify, status_lines, Extracted, Recorder, ServeError, Shared, WORKER_STACK_BYTES,
+};
 use crate::camera::Camera;
 use crate::capture::dump::{decode_rgb, DumpHeader};
 use crate::capture::{CaptureError, FrameSource, Next};
-use crate::extract::{Background, Curve, Extractor};
+use crate::extract::{Background, Curve, ExtractParams, Extractor};
 use crate::ring::{self, FrameMeta, Recv, Slot};
 
-#[allow(clippy::too_many_arguments)]
-pub(super) fn capture_loop(
+/// What the capture thread reads and tells.
+pub(super) struct Capture<'a> {
+    pub shared: &'a Shared,
+    pub stop: &'a AtomicBool,
+    /// The number the first frame gets (a resumed scan goes on counting).
+    pub first_index: u64,
+    pub started: Instant,
+    /// Why capture stopped, if a source failed.
+    pub error: &'a Mutex<Option<String>>,
+    pub background: &'a LiveBackground,
+    /// Set when capture has ended.
+    pub done: &'a AtomicBool,
+}
+
+impl<'env> Capture<'env> {
+    /// Spawns the `capture` thread in `s`: [`capture_loop`], then the frame count to the
+    /// background policy.
+    pub(super) fn spawn<'scope>(
+        self,
+        s: &'scope std::thread::Scope<'scope, 'env>,
+        source: &'env mut dyn FrameSource,
+        producer: ring::Producer,
+        recorder: Option<Recorder>,
+    ) -> Result<(), ServeError> {
+        std::thread::Builder::new()
+            .name("capture".into())
+            .spawn_scoped(s, move || {
+                let frames = capture_loop(source, producer, recorder, &self);
+                self.background.end_at(frames);
+                self.done.store(true, Ordering::Relaxed);
+            })
+            .map(drop)
+            .map_err(|source| ServeError::Thread {
+                name: "capture".into(),
+                source,
+            })
+    }
+}
+
+/// Frames from `source` into the ring until it ends or `stop`; returns how many were
+/// numbered (published).
+fn capture_loop(
     source: &mut dyn FrameSource,
     producer: ring::Producer,
     mut recorder: Option<Recorder>,
-    shared: &Shared,
-    stop: &AtomicBool,
-    first_index: u64,
-    started: Instant,
-    capture_error: &Mutex<Option<String>>,
+    ctx: &Capture<'_>,
 ) -> u64 {
+    let Capture {
+        shared,
+        stop,
+        first_index,
+        started,
+        error: capture_error,
+        ..
+    } = *ctx;
     let lossless = source.lossless();
     let mut index = first_index;
     let mut last_sequence: Option<u32> = None;
@@ -136,17 +182,50 @@ pub(super) fn capture_loop(
     index
 }
 
-#[allow(clippy::too_many_arguments)]
-pub(super) fn worker_loop(
-    consumer: ring::Consumer,
-    results: Sender<Extracted>,
-    header: &DumpHeader,
-    camera: &Camera,
-    params: &crate::extract::ExtractParams,
-    shared: &Shared,
-    background: &LiveBackground,
-    stop: &AtomicBool,
-) {
+/// What every extraction worker reads.
+#[derive(Clone, Copy)]
+pub(super) struct WorkerContext<'a> {
+    pub header: &'a DumpHeader,
+    pub camera: &'a Camera,
+    pub params: &'a ExtractParams,
+    pub shared: &'a Shared,
+    pub background: &'a LiveBackground,
+    /// Set when the solver has ended: parked frames are given up.
+    pub stop: &'a AtomicBool,
+}
+
+/// Spawns the extraction workers `extract-0..n` in `s`, each with its own end of the
+/// ring and of the results' channel.
+pub(super) fn spawn_workers<'scope, 'env>(
+    s: &'scope std::thread::Scope<'scope, 'env>,
+    n: usize,
+    consumer: &ring::Consumer,
+    results: &Sender<Extracted>,
+    ctx: WorkerContext<'env>,
+) -> Result<(), ServeError> {
+    for w in 0..n {
+        let (consumer, results) = (consumer.clone(), results.clone());
+        std::thread::Builder::new()
+            .name(format!("extract-{w}"))
+            .stack_size(WORKER_STACK_BYTES)
+            .spawn_scoped(s, move || worker_loop(consumer, results, ctx))
+            .map_err(|source| ServeError::Thread {
+                name: format!("extract-{w}"),
+                source,
+            })?;
+    }
+    Ok(())
+}
+
+fn worker_loop(consumer: ring::Consumer, results: Sender<Extracted>, ctx: WorkerContext<'_>) {
+    let WorkerContext {
+        header,
+        camera,
+        params,
+        shared,
+        background,
+        stop,
+    } = ctx;
     let Ok(mut extractor) = Extractor::new(params, camera) else {
         return;
     };
