@@ -10,7 +10,8 @@
 //!
 //! - **Samples.** The warm-up's `K` frames spread evenly over frames `0..W`
 //!   (frame `(2j + 1)·W / 2K` for `j < K`; all `W` of them if `K > W`), then every
-//!   frame from `W` on whose number is a multiple of `S`.
+//!   frame from `W` on whose number is a multiple of `S`. A recording or stream of
+//!   `n < W` frames spreads them over its `n` instead.
 //! - **Versions.** Frames `0..W` are measured against version 0: the median of the
 //!   warm-up samples. It is the only one that looks ahead; live, those frames wait for
 //!   it. From `W` on the background changes every `P` frames: frames
@@ -55,8 +56,8 @@ impl Default for BackgroundParams {
     fn default() -> Self {
         Self {
             median_frames: 9,
-            warmup_frames: 25,
-            sample_every: 10,
+            warmup_frames: 60,
+            sample_every: 20,
             refresh_every: 30,
         }
     }
@@ -93,24 +94,19 @@ impl Policy {
         })
     }
 
-    /// Whether frame `i` is a sample.
+    /// Whether frame `i` is kept for a median: every warm-up frame (which of them are
+    /// the warm-up's samples depends on whether the stream outlasts the warm-up), then
+    /// the samples.
     pub fn is_sample(&self, i: usize) -> bool {
-        if i >= self.w {
-            return i.is_multiple_of(self.s);
-        }
-        // The warm-up's samples are (2j + 1)·W / 2K: is some j < K mapped to i?
-        let k = self.warmup_len();
-        let j = (2 * i * k) / (2 * self.w);
-        (j.saturating_sub(1)..=j + 1).any(|j| j < k && self.warmup_sample(j) == i)
+        i < self.w || i.is_multiple_of(self.s)
     }
 
-    /// How many samples the warm-up has: `K`, or every warm-up frame if fewer.
-    fn warmup_len(&self) -> usize {
-        self.k.min(self.w)
-    }
-
-    fn warmup_sample(&self, j: usize) -> usize {
-        ((2 * j + 1) * self.w) / (2 * self.warmup_len())
+    /// The warm-up's samples when the stream has `frames` frames (`K` spread evenly
+    /// over the first `min(W, frames)`, or all of them if fewer).
+    pub fn warmup_samples(&self, frames: usize) -> Vec<usize> {
+        let m = self.w.min(frames);
+        let k = self.k.min(m);
+        (0..k).map(|j| ((2 * j + 1) * m) / (2 * k)).collect()
     }
 
     /// The version frame `i` is measured against.
@@ -137,12 +133,12 @@ impl Policy {
         }
     }
 
-    /// The samples version `v` is the median of (those that exist), oldest first.
+    /// The samples version `v` is the median of (those that exist), oldest first, in a
+    /// stream that outlasts the warm-up.
     pub fn samples_of(&self, v: usize) -> Vec<usize> {
+        let warmup = self.warmup_samples(self.w);
         if v == 0 {
-            return (0..self.warmup_len())
-                .map(|j| self.warmup_sample(j))
-                .collect();
+            return warmup;
         }
         let before = self.start_of(v);
         // Rolling samples: multiples of S in W..before; the rest from the warm-up.
@@ -152,10 +148,11 @@ impl Policy {
             .rev()
             .take(self.k)
             .collect();
-        let mut j = self.warmup_len();
-        while out.len() < self.k && j > 0 {
-            j -= 1;
-            out.push(self.warmup_sample(j));
+        for &i in warmup.iter().rev() {
+            if out.len() == self.k {
+                break;
+            }
+            out.push(i);
         }
         out.reverse();
         out
@@ -174,6 +171,8 @@ pub struct Rolling {
     versions: BTreeMap<usize, Arc<Background>>,
     /// Frames from here on will never be offered.
     end: usize,
+    /// Version 0 is made: the warm-up's other frames are let go.
+    warmup_done: bool,
 }
 
 impl Rolling {
@@ -184,6 +183,7 @@ impl Rolling {
             samples: BTreeMap::new(),
             versions: BTreeMap::new(),
             end: usize::MAX,
+            warmup_done: false,
         }
     }
 
@@ -191,16 +191,36 @@ impl Rolling {
         &self.policy
     }
 
-    /// Offers frame `i` (`None`: undecodable). Only samples are kept; the image is
-    /// copied only then. A frame offered again is ignored.
-    pub fn offer(&mut self, i: usize, image: Option<&RgbImage>) {
-        if self.policy.is_sample(i) {
+    /// Offers frame `i` (`None`: undecodable). Only samples are kept (shared, not
+    /// copied). A frame offered again is ignored.
+    pub fn offer(&mut self, i: usize, image: Option<&Arc<RgbImage>>) {
+        if self.policy.is_sample(i) && !self.done_with(i) {
             let size = self.size;
-            self.samples.entry(i).or_insert_with(|| {
-                image
-                    .filter(|im| im.dimensions() == size)
-                    .map(|im| Arc::new(im.clone()))
-            });
+            self.samples
+                .entry(i)
+                .or_insert_with(|| image.filter(|im| im.dimensions() == size).cloned());
+        }
+    }
+
+    /// A warm-up frame offered after version 0 was made from others.
+    fn done_with(&self, i: usize) -> bool {
+        let p = &self.policy;
+        i < p.w && self.warmup_done && !p.samples_of(0).contains(&i)
+    }
+
+    /// The samples version `v` is made of, and whether every one of them has come (or
+    /// lies past the end). Version 0 waits for every warm-up frame: only then is it
+    /// known whether the stream outlasts the warm-up.
+    fn wanted(&self, v: usize) -> (Vec<usize>, bool) {
+        let came = |i: &usize| *i >= self.end || self.samples.contains_key(i);
+        if v == 0 {
+            let m = self.policy.w.min(self.end);
+            let all = (0..m).all(|i| came(&i));
+            (self.policy.warmup_samples(m), all)
+        } else {
+            let wanted = self.policy.samples_of(v);
+            let all = wanted.iter().all(came);
+            (wanted, all)
         }
     }
 
@@ -216,11 +236,8 @@ impl Rolling {
         if let Some(b) = self.versions.get(&v) {
             return Some(b.clone());
         }
-        let wanted = self.policy.samples_of(v);
-        if wanted
-            .iter()
-            .any(|&i| i < self.end && !self.samples.contains_key(&i))
-        {
+        let (wanted, all_came) = self.wanted(v);
+        if !all_came {
             return None;
         }
         let images: Vec<&RgbImage> = wanted
@@ -241,6 +258,12 @@ impl Rolling {
             })),
         };
         self.versions.insert(v, made.clone());
+        if v == 0 {
+            // The warm-up frames that are not its samples are needed no more.
+            let w = self.policy.w;
+            self.samples.retain(|&i, _| i >= w || wanted.contains(&i));
+            self.warmup_done = true;
+        }
         Some(made)
     }
 
@@ -250,9 +273,12 @@ impl Rolling {
     pub fn forget_before(&mut self, frame: usize) {
         let keep_from = self.policy.version_of(frame).saturating_sub(1);
         self.versions = self.versions.split_off(&keep_from);
-        if let Some(&oldest) = self.policy.samples_of(keep_from).first() {
-            self.samples = self.samples.split_off(&oldest);
-        }
+        let Some(&oldest) = self.policy.samples_of(keep_from).first() else {
+            return;
+        };
+        // Until version 0 is made, every warm-up frame may be one of its samples.
+        let oldest = if self.warmup_done { oldest } else { 0 };
+        self.samples = self.samples.split_off(&oldest);
     }
 
     /// The oldest sample held (those before it are no longer needed).
@@ -270,19 +296,35 @@ impl Rolling {
 pub type SharedRolling = std::sync::Mutex<Rolling>;
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
+    /// The sizes the tests' numbers are worked out for (not the defaults, which may be
+    /// tuned).
+    pub(crate) fn params() -> BackgroundParams {
+        BackgroundParams {
+            median_frames: 9,
+            warmup_frames: 25,
+            sample_every: 10,
+            refresh_every: 30,
+        }
+    }
+
     fn policy() -> Policy {
-        Policy::new(&BackgroundParams::default()).expect("defaults")
+        Policy::new(&params()).expect("valid")
     }
 
     #[test]
-    fn defaults_sample_the_warm_up_then_every_tenth_frame() {
+    fn the_warm_up_is_sampled_evenly_then_every_sample_every_th_frame() {
         let p = policy();
-        let warm: Vec<usize> = (0..25).filter(|&i| p.is_sample(i)).collect();
-        assert_eq!(warm, p.samples_of(0));
+        assert!(
+            (0..25).all(|i| p.is_sample(i)),
+            "every warm-up frame is kept"
+        );
+        let warm = p.samples_of(0);
+        assert_eq!(warm, p.warmup_samples(25));
         assert_eq!(warm.len(), 9);
+        assert_eq!(p.warmup_samples(12), [0, 2, 3, 4, 6, 7, 8, 10, 11]);
         assert!(warm.windows(2).all(|w| w[1] - w[0] >= 2), "{warm:?}");
         let rolling: Vec<usize> = (25..100).filter(|&i| p.is_sample(i)).collect();
         assert_eq!(rolling, vec![30, 40, 50, 60, 70, 80, 90]);
@@ -309,24 +351,26 @@ mod tests {
         assert_eq!(p.samples_of(1), p.samples_of(0));
     }
 
-    fn flat(v: u8) -> RgbImage {
-        RgbImage::from_pixel(3, 2, image::Rgb([v; 3]))
+    fn flat(v: u8) -> Arc<RgbImage> {
+        Arc::new(RgbImage::from_pixel(3, 2, image::Rgb([v; 3])))
     }
 
     #[test]
     fn a_version_waits_for_its_samples_in_any_order_then_follows_the_scene() {
         let p = policy();
         let mut r = Rolling::new(p, 3, 2);
-        // Warm-up samples offered last-first: version 0 is ready only with all nine.
-        let warm = p.samples_of(0);
-        for (n, &i) in warm.iter().rev().enumerate() {
-            assert!(r.version(0).is_none(), "after {n} samples");
+        // Warm-up frames offered last-first: version 0 is ready only with all 25 (only
+        // then is it known that the stream outlasts the warm-up).
+        for (n, i) in (0..25).rev().enumerate() {
+            assert!(r.version(0).is_none(), "after {n} frames");
             r.offer(i, Some(&flat(10)));
         }
+        assert_eq!(r.held().0, 25);
         assert_eq!(
             r.version(0).expect("ready").image().get_pixel(0, 0).0,
             [10; 3]
         );
+        assert_eq!(r.held().0, 9, "the warm-up's other frames are let go");
         // The scene brightens from frame 30: version 2 has 3 of 9 bright samples (the
         // median stays), version 4 (frames 115..) has 9 of 9.
         for i in (30..200).step_by(10) {
@@ -350,9 +394,13 @@ mod tests {
     fn a_short_stream_makes_a_version_of_what_came_or_a_local_one() {
         let p = policy();
         let mut r = Rolling::new(p, 3, 2);
-        r.offer(p.samples_of(0)[0], Some(&flat(7)));
+        // Three frames, the first and last undecodable: spread over those three.
+        r.offer(0, None);
+        r.offer(1, Some(&flat(7)));
+        r.offer(2, None);
         assert!(r.version(0).is_none());
         r.end_at(3);
+        assert_eq!(p.warmup_samples(3), [0, 1, 2]);
         assert_eq!(
             r.version(0).expect("ended").image().get_pixel(1, 1).0,
             [7; 3]
@@ -366,11 +414,10 @@ mod tests {
     fn more_samples_than_warm_up_frames_take_every_warm_up_frame() {
         let params = BackgroundParams {
             median_frames: 31,
-            ..BackgroundParams::default()
+            ..params()
         };
         let p = Policy::new(&params).expect("valid");
         assert_eq!(p.samples_of(0), (0..25).collect::<Vec<_>>());
-        assert!((0..25).all(|i| p.is_sample(i)));
         // Later versions take 31: the rolling samples, then the latest warm-up frames.
         assert_eq!(p.samples_of(2).len(), 28);
         assert_eq!(p.samples_of(12).len(), 31);

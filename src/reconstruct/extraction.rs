@@ -32,7 +32,7 @@ pub struct Extracted {
 }
 
 /// One block's frames: their curves, and the images of the policy's samples.
-type Block = Vec<(Vec<Curve>, Option<RgbImage>)>;
+type Block = Vec<(Vec<Curve>, Option<Arc<RgbImage>>)>;
 
 /// The background policy and extraction over a recording: the laser-off frame
 /// `background`, or else the rolling temporal median ([`crate::extract::rolling`]),
@@ -80,13 +80,17 @@ pub fn extract_frames(
                 pass.map_frames(&wanted, init, |ex, i, r| {
                     let image = skipped.filter(i, r)?;
                     let curves = extract_one(ex, image.as_ref(), &bg)?;
-                    Ok((curves, image.filter(|_| policy.is_sample(i))))
+                    Ok((curves, image.filter(|_| policy.is_sample(i)).map(Arc::new)))
                 })?
             }
             // The warm-up: its own samples make its background, so the block is
             // decoded first.
             None => {
-                let images = pass.map_frames(&wanted, || (), |_, i, r| skipped.filter(i, r))?;
+                let images = pass.map_frames(
+                    &wanted,
+                    || (),
+                    |_, i, r| Ok(skipped.filter(i, r)?.map(Arc::new)),
+                )?;
                 for (&i, image) in wanted.iter().zip(&images) {
                     rolling.offer(i, image.as_ref());
                 }
@@ -102,7 +106,7 @@ pub fn extract_frames(
                 images
                     .into_par_iter()
                     .map_init(init, |ex, image| {
-                        Ok((extract_one(ex, image.as_ref(), &bg)?, None))
+                        Ok((extract_one(ex, image.as_deref(), &bg)?, None))
                     })
                     .collect::<Result<_, ReconstructError>>()?
             }

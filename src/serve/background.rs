@@ -30,7 +30,7 @@ use crate::extract::Background;
 use crate::ring::FrameMeta;
 
 /// A decoded frame (`None`: undecodable) and the background to extract it against.
-pub(super) type Ready = (FrameMeta, Option<RgbImage>, Arc<Background>);
+pub(super) type Ready = (FrameMeta, Option<Arc<RgbImage>>, Arc<Background>);
 
 /// The background the workers share.
 pub(super) struct LiveBackground {
@@ -46,7 +46,7 @@ struct State {
     rolling: Option<Rolling>,
     fixed: Option<Arc<Background>>,
     /// Frames waiting for their version, by number.
-    parked: BTreeMap<u64, (FrameMeta, Option<RgbImage>)>,
+    parked: BTreeMap<u64, (FrameMeta, Option<Arc<RgbImage>>)>,
     /// Frames a worker took from the ring and has not yet decoded and offered.
     in_flight: BTreeMap<u64, usize>,
     /// The first background made, which points take their colour from.
@@ -122,7 +122,10 @@ impl LiveBackground {
                 let Some(i) = sample_number(&path).filter(|&i| i < first_index) else {
                     continue;
                 };
-                let image = std::fs::read(&path).ok().and_then(|b| decode(&b));
+                let image = std::fs::read(&path)
+                    .ok()
+                    .and_then(|b| decode(&b))
+                    .map(Arc::new);
                 if image.is_none() {
                     tracing::warn!("background sample {} is unreadable", path.display());
                 }
@@ -222,6 +225,7 @@ impl LiveBackground {
     pub(super) fn arrive(&self, meta: FrameMeta, image: Option<RgbImage>) -> Option<Ready> {
         let mut s = lock(&self.state);
         let i = meta.index;
+        let image = image.map(Arc::new);
         if let Some(r) = s.rolling.as_mut() {
             r.offer(i as usize, image.as_ref());
         }
@@ -307,7 +311,6 @@ impl State {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::extract::rolling::BackgroundParams;
 
     fn meta(index: u64) -> FrameMeta {
         FrameMeta {
@@ -317,7 +320,7 @@ mod tests {
     }
 
     fn policy() -> Policy {
-        Policy::new(&BackgroundParams::default()).expect("defaults")
+        Policy::new(&crate::extract::rolling::tests::params()).expect("valid")
     }
 
     /// Frame `i` of a scene whose brightness steps up every 40 frames.
@@ -370,7 +373,7 @@ mod tests {
         // nine samples before frame 175.
         let mut offline = Rolling::new(policy(), 4, 3);
         for i in 0..n {
-            offline.offer(i as usize, Some(&frame(i)));
+            offline.offer(i as usize, Some(&Arc::new(frame(i))));
         }
         let v = policy().version_of(200);
         let want = offline
