@@ -30,20 +30,22 @@
 mod background;
 pub mod checkpoint;
 pub mod incremental;
+mod listeners;
 pub mod net;
 pub mod notify;
+mod scan;
+mod solver;
 pub mod status;
 pub mod stream;
 mod threads;
 pub mod web;
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use crossbeam_channel::{bounded, Receiver, RecvTimeoutError};
+use crossbeam_channel::bounded;
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
@@ -56,10 +58,11 @@ use crate::extract::{Curve, Extractor};
 use crate::ring::{self, FrameMeta};
 
 use background::LiveBackground;
-use checkpoint::{Checkpoint, CheckpointWriter, FrameCurves};
+use checkpoint::{Checkpoint, CheckpointWriter};
 use incremental::{Incremental, IncrementalParams, SolverCounts};
+use listeners::Listeners;
+use scan::{FdReserve, ScanFiles};
 use status::{DeviceState, Status};
-use stream::EpochReason;
 
 /// The `[serve]` section of `crossline.toml`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -311,122 +314,6 @@ struct Extracted {
     curves: Vec<Curve>,
 }
 
-/// A scan's identity and where its files go.
-struct ScanFiles {
-    id: String,
-    state: PathBuf,
-    cloud: PathBuf,
-    report: PathBuf,
-    recordings: PathBuf,
-}
-
-#[derive(Serialize, Deserialize)]
-struct Session {
-    version: u32,
-    scan: String,
-    input: String,
-    width: u32,
-    height: u32,
-}
-
-/// UTC time as `YYYYMMDDTHHMMSSZ` (civil-from-days, no time zone database needed).
-fn utc_stamp() -> String {
-    let secs = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs()) as i64;
-    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!(
-        "{y:04}{m:02}{d:02}T{:02}{:02}{:02}Z",
-        rem / 3600,
-        (rem / 60) % 60,
-        rem % 60
-    )
-}
-
-/// Finds the unfinished scan in `out_dir/state` (same input) or starts a new one.
-fn open_scan(
-    opts: &ServeOptions,
-    width: u32,
-    height: u32,
-) -> Result<(ScanFiles, bool), ServeError> {
-    let io = |what, path: &Path| {
-        let path = path.to_path_buf();
-        move |source| ServeError::Io { what, path, source }
-    };
-    let state = opts.out_dir.join("state");
-    std::fs::create_dir_all(&opts.out_dir).map_err(io("cannot create", &opts.out_dir))?;
-    let session_path = state.join("session.json");
-    let mut resumed = false;
-    let mut id = None;
-    if let Ok(text) = std::fs::read_to_string(&session_path) {
-        match serde_json::from_str::<Session>(&text) {
-            Ok(s) if s.input == opts.input_id && (s.width, s.height) == (width, height) => {
-                id = Some(s.scan);
-                resumed = true;
-            }
-            Ok(s) => {
-                let aside = opts.out_dir.join(format!("{}.state", s.scan));
-                tracing::warn!(
-                    "{} holds an unfinished scan of another input ({}); keeping it in {}",
-                    state.display(),
-                    s.input,
-                    aside.display()
-                );
-                std::fs::rename(&state, &aside).map_err(io("cannot move", &state))?;
-            }
-            Err(e) => {
-                let aside = opts
-                    .out_dir
-                    .join(format!("unreadable-{}.state", utc_stamp()));
-                tracing::warn!(
-                    "{}: {e}; keeping that state in {}",
-                    session_path.display(),
-                    aside.display()
-                );
-                std::fs::rename(&state, &aside).map_err(io("cannot move", &state))?;
-            }
-        }
-    }
-    let id = id.unwrap_or_else(utc_stamp);
-    std::fs::create_dir_all(&state).map_err(io("cannot create", &state))?;
-    if !resumed {
-        let s = Session {
-            version: 1,
-            scan: id.clone(),
-            input: opts.input_id.clone(),
-            width,
-            height,
-        };
-        let text = serde_json::to_string_pretty(&s).unwrap_or_default();
-        std::fs::write(&session_path, text).map_err(io("cannot write", &session_path))?;
-    }
-    Ok((
-        ScanFiles {
-            cloud: opts
-                .cloud_path
-                .clone()
-                .unwrap_or_else(|| opts.out_dir.join(format!("{id}.ply"))),
-            report: opts
-                .report_path
-                .clone()
-                .unwrap_or_else(|| opts.out_dir.join(format!("{id}.json"))),
-            recordings: opts.out_dir.join("recordings"),
-            state,
-            id,
-        },
-        resumed,
-    ))
-}
-
 /// Rotating recording of raw buffers.
 struct Recorder {
     dir: PathBuf,
@@ -438,6 +325,19 @@ struct Recorder {
 }
 
 impl Recorder {
+    /// A recording of the scan's raw buffers into `out_dir/recordings/<scan>-NNN.dump`,
+    /// a new part every `[serve] record_rotate_mib`.
+    fn new(scan: &ScanFiles, header: &DumpHeader, cfg: &ServeConfig) -> Self {
+        Self {
+            dir: scan.recordings.clone(),
+            scan: scan.id.clone(),
+            header: header.clone(),
+            rotate_bytes: cfg.record_rotate_mib.max(1) << 20,
+            part: 0,
+            writer: None,
+        }
+    }
+
     fn write(&mut self, shared: &Shared, sequence: u32, ts: u64, flags: u32, payload: &[u8]) {
         if self
             .writer
@@ -487,32 +387,6 @@ impl Recorder {
     }
 }
 
-/// A resumed scan's checkpoint (nothing for a new scan), its state said in the log.
-fn resume_scan(
-    scan: &ScanFiles,
-    resumed: bool,
-    width: u32,
-    height: u32,
-) -> Result<checkpoint::Resumed, ServeError> {
-    if !resumed {
-        return Ok(checkpoint::Resumed {
-            background: None,
-            frames: Vec::new(),
-            stopped: None,
-        });
-    }
-    let r = checkpoint::resume(&scan.state, width, height)?;
-    if let Some(why) = &r.stopped {
-        tracing::warn!("checkpoint ended early ({why}); those frames are processed again");
-    }
-    tracing::info!(
-        scan = %scan.id,
-        frames = r.frames.len(),
-        "resuming the unfinished scan from its checkpoint"
-    );
-    Ok(r)
-}
-
 /// The bytes of one ring slot for frames of `header`, refused when a frame has no
 /// bounded size or the ring would need more than [`MAX_RING_BYTES`].
 fn ring_slot_bytes(header: &DumpHeader, ring_slots: usize) -> Result<usize, ServeError> {
@@ -542,10 +416,132 @@ pub fn run(
     mut opts: ServeOptions,
     stop: Arc<AtomicBool>,
 ) -> Result<ServeReport, ServeError> {
-    let started = Instant::now();
-    let cpu_start = cpu_seconds();
+    let (started, cpu_start) = (Instant::now(), cpu_seconds());
     let cfg = opts.config.serve.clone();
     let header = source.header().clone();
+    // Sizes first: nothing is allocated or touched for a stream we cannot buffer.
+    let slot_bytes = check_stream(&header, &opts)?;
+    // Then the lock, before reading or moving anything in out_dir: a second daemon on
+    // the same directory would append to the same log and replace the sockets.
+    let _lock = scan::lock_out_dir(&opts.out_dir)?;
+    // Descriptors held back for the final cloud and report, released just before
+    // they are written, so that clients exhausting the limit cannot lose the scan.
+    let mut reserve = FdReserve::new(RESERVED_FDS);
+    let (scan, resuming) = scan::open_scan(&opts, header.width, header.height)?;
+    let resumed = scan::resume_scan(&scan, resuming, header.width, header.height)?;
+    let resumed_frames = resumed.frames.len() as u64;
+    // Sockets before any work, so that a bad address fails first.
+    let http = opts.http_listener.take();
+    let listeners = Listeners::bind(&cfg, http, &header, &scan.id, started)?;
+    let (hub, feed) = (listeners.hub.clone(), listeners.feed.clone());
+    let policy = Policy::new(&opts.config.background)?;
+    let samples = scan.state.join("samples");
+    let background = LiveBackground::for_scan(
+        policy,
+        &header,
+        &samples,
+        resumed.background.clone(),
+        resumed_frames,
+    );
+    let shared = Shared::default();
+    let mut solver = restore_solver(&opts, resumed, source.as_mut(), &shared)?;
+    let interval = seconds(cfg.checkpoint_interval_s, 0.05, 86_400.0);
+    let writer = CheckpointWriter::open(&scan.state, header.width, header.height, interval)?;
+    let mut checkpoint = Checkpoint::new(writer);
+    let workers = worker_count(cfg.workers);
+    let (producer, consumer) = ring::ring(cfg.ring_slots.max(2), slot_bytes);
+    let (result_tx, result_rx) = bounded::<Extracted>(2 * workers + 2);
+    let notifier = notify::Notifier::from_env();
+    let (workers_stop, status_stop, capture_done) = Default::default();
+    let capture_error = Mutex::new(None);
+    let outcome = std::thread::scope(|s| {
+        let threads = || -> Result<_, ServeError> {
+            let serving = listeners.spawn(s, &opts.camera, &cfg)?;
+            let recorder = opts.record.then(|| Recorder::new(&scan, &header, &cfg));
+            let capture = threads::Capture {
+                shared: &shared,
+                stop: &stop,
+                first_index: resumed_frames,
+                started,
+                error: &capture_error,
+                background: &background,
+                done: &capture_done,
+            };
+            capture.spawn(s, source.as_mut(), producer, recorder)?;
+            let ctx = threads::WorkerContext {
+                header: &header,
+                camera: &opts.camera,
+                params: &opts.config.extract,
+                shared: &shared,
+                background: &background,
+                stop: &workers_stop,
+            };
+            threads::spawn_workers(s, workers, &consumer, &result_tx, ctx)?;
+            drop((consumer, result_tx));
+            let status = threads::StatusThread {
+                shared: &shared,
+                hub: &hub,
+                feed: &feed,
+                notifier: &notifier,
+                scan_id: &scan.id,
+                started,
+                interval: Duration::from_millis(cfg.status_interval_ms.clamp(50, 3_600_000)),
+            };
+            status.spawn(s, &status_stop, &capture_done)?;
+            Ok(serving)
+        };
+        let serving = match threads() {
+            Ok(serving) => serving,
+            Err(e) => {
+                // Whatever started must end for the scope to end.
+                for flag in [&*stop, &workers_stop, &status_stop] {
+                    flag.store(true, Ordering::Relaxed);
+                }
+                return Err(e);
+            }
+        };
+        // The solver runs on this thread. It owns the results' receiver: should it end
+        // early, the workers' sends fail and they end too, instead of waiting for ever.
+        let live = solver::Live {
+            hub: &hub,
+            feed: &feed,
+            shared: &shared,
+            scan: &scan,
+        };
+        live.run(
+            &mut solver,
+            result_rx,
+            &mut checkpoint,
+            &background,
+            resumed_frames,
+        );
+        workers_stop.store(true, Ordering::Relaxed);
+        let outcome = live.finish(&mut solver, &mut checkpoint, &mut reserve, &opts);
+        notifier.notify("STOPPING=1");
+        serving.stop();
+        status_stop.store(true, Ordering::Relaxed);
+        outcome
+    });
+    let (points, reconstruction, solve_error) = outcome?;
+    let report = ServeReport {
+        resumed_frames,
+        epochs: solver.epoch(),
+        cloud: scan.cloud.clone(),
+        points,
+        cpu_seconds: cpu_seconds() - cpu_start,
+        capture_error: lock(&capture_error).clone(),
+        checkpoint_error: checkpoint.error().map(str::to_string),
+        reconstruction,
+        solve_error,
+        ..ServeReport::counted(&scan.id, &opts.input_id, &shared, &hub, started)
+    };
+    scan::close(&scan, &opts.out_dir, &report)?;
+    Ok(report)
+}
+
+/// The ring slot's size for `header`, once the stream is known to fit the camera file
+/// and the extraction settings are valid.
+fn check_stream(header: &DumpHeader, opts: &ServeOptions) -> Result<usize, ServeError> {
     if (header.width, header.height) != (opts.camera.width, opts.camera.height) {
         return Err(ServeError::Size {
             got_w: header.width,
@@ -555,97 +551,43 @@ pub fn run(
         });
     }
     Extractor::new(&opts.config.extract, &opts.camera)?;
-    // Sizes first: nothing is allocated or touched for a stream we cannot buffer.
-    let slot_bytes = ring_slot_bytes(&header, cfg.ring_slots)?;
-    // Then the lock, before reading or moving anything in out_dir: a second daemon on
-    // the same directory would append to the same log and replace the sockets.
-    let _lock = lock_out_dir(&opts.out_dir)?;
-    // Descriptors held back for the final cloud and report, released just before
-    // they are written, so that clients exhausting the limit cannot lose the scan.
-    let mut reserve = FdReserve::new(RESERVED_FDS);
-    let (scan, resumed_scan) = open_scan(&opts, header.width, header.height)?;
-    let resumed = resume_scan(&scan, resumed_scan, header.width, header.height)?;
-    let resumed_frames = resumed.frames.len() as u64;
-    // Sockets first, so a bad address fails before any work.
-    let none_if_empty = |s: &str| (!s.is_empty()).then(|| s.to_string());
-    let endpoints = net::Endpoints {
-        stream_tcp: none_if_empty(&cfg.stream_tcp),
-        stream_unix: none_if_empty(&cfg.stream_unix).map(PathBuf::from),
-        status_unix: none_if_empty(&cfg.status_socket).map(PathBuf::from),
-        max_clients: cfg.stream_clients_max,
-    };
-    let listeners = net::bind(&endpoints)?;
-    if let Some(addr) = listeners.tcp_addr {
-        tracing::info!(%addr, "cloud stream listening");
-    }
-    let web_listener = match opts.http_listener.take() {
-        Some(l) => Some(web::from_std(l)?),
-        None => none_if_empty(&cfg.http_listen)
-            .map(|a| web::bind(&a))
-            .transpose()?,
-    };
-    if let Some(l) = &web_listener {
-        tracing::info!("live view at http://{}/", l.addr);
-    }
-    let hello = serde_json::json!({
-        "width": header.width,
-        "height": header.height,
-        "scan": scan.id,
-        "daemon": concat!("crossline ", env!("CARGO_PKG_VERSION")),
-    })
-    .to_string();
-    let hub = Arc::new(net::Hub::new(
-        &hello,
-        cfg.client_queue_mib.saturating_mul(1 << 20),
-        started,
-    ));
-    let feed = Arc::new(net::StatusFeed::new());
-    let net_stop = Arc::new(tokio::sync::Notify::new());
-    let shared = Arc::new(Shared::default());
-    let notifier = notify::Notifier::from_env();
+    ring_slot_bytes(header, opts.config.serve.ring_slots)
+}
 
-    let workers = if cfg.workers == 0 {
+/// `[serve] workers` (0: one per core), at most [`MAX_WORKERS`].
+fn worker_count(configured: usize) -> usize {
+    let n = if configured == 0 {
         std::thread::available_parallelism().map_or(1, |n| n.get())
     } else {
-        cfg.workers
+        configured
+    };
+    n.min(MAX_WORKERS)
+}
+
+/// The solver of `opts`, with a resumed scan's checkpointed frames replayed into it
+/// (nobody listens yet, so nothing is sent) and `source` moved past them.
+fn restore_solver(
+    opts: &ServeOptions,
+    resumed: checkpoint::Resumed,
+    source: &mut dyn FrameSource,
+    shared: &Shared,
+) -> Result<Incremental, ServeError> {
+    let params = IncrementalParams {
+        min_planes_first_solve: opts.config.serve.min_planes_first_solve,
+        solve_growth: opts.config.serve.solve_growth,
+    };
+    let camera = opts.camera.clone();
+    let mut solver = Incremental::new(camera, opts.config.clone(), params, opts.scale.clone());
+    if let Some(bg) = resumed.background {
+        solver.set_colour_source(Arc::new(bg));
     }
-    .min(MAX_WORKERS);
-    let (producer, consumer) = ring::ring(cfg.ring_slots.max(2), slot_bytes);
-    let (result_tx, result_rx) = bounded::<Extracted>(2 * workers + 2);
-    let live_background = Arc::new(LiveBackground::for_scan(
-        Policy::new(&opts.config.background)?,
-        &header,
-        &scan.state.join("samples"),
-        resumed.background.clone(),
-        resumed_frames,
-    ));
-    let mut solver = Incremental::new(
-        opts.camera.clone(),
-        opts.config.clone(),
-        IncrementalParams {
-            min_planes_first_solve: cfg.min_planes_first_solve,
-            solve_growth: cfg.solve_growth,
-        },
-        opts.scale.clone(),
-    );
-    if let Some(bg) = &resumed.background {
-        solver.set_colour_source(Arc::new(bg.clone()));
-    }
-    let mut checkpoint = Checkpoint::new(CheckpointWriter::open(
-        &scan.state,
-        header.width,
-        header.height,
-        seconds(cfg.checkpoint_interval_s, 0.05, 86_400.0),
-    )?);
-    // Replay the checkpointed frames into the solver (no sending: nobody listens yet).
+    let frames = resumed.frames.len() as u64;
     let mut start_position = 0;
     for f in resumed.frames {
         start_position = f.source_position + 1;
         let _ = solver.add_frame(f.curves, 0);
     }
-    shared
-        .frames_processed
-        .store(resumed_frames, Ordering::Relaxed);
+    shared.frames_processed.store(frames, Ordering::Relaxed);
     if start_position > 0 {
         source.seek(start_position).map_err(|e| ServeError::Io {
             what: "cannot resume in",
@@ -653,184 +595,7 @@ pub fn run(
             source: std::io::Error::other(e.to_string()),
         })?;
     }
-    let workers_stop = Arc::new(AtomicBool::new(false));
-    let capture_error: Arc<Mutex<Option<String>>> = Arc::new(Mutex::new(None));
-
-    let mut report = None;
-    let capture_done = Arc::new(AtomicBool::new(false));
-    let scope_result: Result<(), ServeError> = std::thread::scope(|s| {
-        // Sockets.
-        let net_handle = {
-            let (hub, feed, net_stop) = (hub.clone(), feed.clone(), net_stop.clone());
-            let drain = seconds(cfg.drain_timeout_s, 0.0, 3600.0);
-            std::thread::Builder::new()
-                .name("net".into())
-                .spawn_scoped(s, move || listeners.serve(hub, feed, net_stop, drain))
-                .map_err(|source| ServeError::Thread {
-                    name: "net".into(),
-                    source,
-                })?
-        };
-        // The live view.
-        let web_stop = Arc::new(tokio::sync::Notify::new());
-        let web_handle = match web_listener {
-            Some(l) => {
-                let ctx = web::WebContext {
-                    hub: hub.clone(),
-                    status: feed.clone(),
-                    camera: opts.camera.clone(),
-                    max_clients: cfg.http_clients_max,
-                };
-                let (web_stop, drain) =
-                    (web_stop.clone(), seconds(cfg.drain_timeout_s, 0.0, 3600.0));
-                let h = std::thread::Builder::new()
-                    .name("web".into())
-                    .spawn_scoped(s, move || l.serve(ctx, web_stop, drain))
-                    .map_err(|source| ServeError::Thread {
-                        name: "web".into(),
-                        source,
-                    })?;
-                Some(h)
-            }
-            None => None,
-        };
-
-        // Capture.
-        let recorder = opts.record.then(|| Recorder {
-            dir: scan.recordings.clone(),
-            scan: scan.id.clone(),
-            header: header.clone(),
-            rotate_bytes: cfg.record_rotate_mib.max(1) << 20,
-            part: 0,
-            writer: None,
-        });
-        let capture = threads::Capture {
-            shared: &shared,
-            stop: &stop,
-            first_index: resumed_frames,
-            started,
-            error: &capture_error,
-            background: &live_background,
-            done: &capture_done,
-        };
-        capture.spawn(s, source.as_mut(), producer, recorder)?;
-
-        // Workers.
-        let ctx = threads::WorkerContext {
-            header: &header,
-            camera: &opts.camera,
-            params: &opts.config.extract,
-            shared: &shared,
-            background: &live_background,
-            stop: &workers_stop,
-        };
-        threads::spawn_workers(s, workers, &consumer, &result_tx, ctx)?;
-        drop(consumer);
-        drop(result_tx);
-
-        // Status.
-        let status_stop = Arc::new(AtomicBool::new(false));
-        {
-            let (shared, feed, hub, status_stop) = (
-                shared.clone(),
-                feed.clone(),
-                hub.clone(),
-                status_stop.clone(),
-            );
-            let interval = Duration::from_millis(cfg.status_interval_ms.clamp(50, 3_600_000));
-            let scan_id = scan.id.clone();
-            let notifier = &notifier;
-            let capture_done = capture_done.clone();
-            std::thread::Builder::new()
-                .name("status".into())
-                .spawn_scoped(s, move || {
-                    let st = threads::StatusThread {
-                        shared: &shared,
-                        hub: &hub,
-                        feed: &feed,
-                        notifier,
-                        scan_id: &scan_id,
-                        started,
-                        interval,
-                    };
-                    st.run(&status_stop, &capture_done)
-                })
-                .map_err(|source| ServeError::Thread {
-                    name: "status".into(),
-                    source,
-                })?;
-        }
-
-        // Solver, on this thread. It owns the results' receiver: should it end early,
-        // the workers' sends fail and they end too, instead of waiting for ever.
-        let results = result_rx;
-        solver_loop(
-            &mut solver,
-            &results,
-            &mut checkpoint,
-            &scan,
-            &live_background,
-            &hub,
-            &feed,
-            &shared,
-            resumed_frames,
-        );
-        drop(results);
-        workers_stop.store(true, Ordering::Relaxed);
-        let outcome = finish(
-            &mut solver,
-            &mut checkpoint,
-            &mut reserve,
-            &scan,
-            &hub,
-            &feed,
-            &shared,
-            &opts,
-        );
-        notifier.notify("STOPPING=1");
-        net_stop.notify_one();
-        web_stop.notify_one();
-        status_stop.store(true, Ordering::Relaxed);
-        let _ = net_handle.join();
-        if let Some(h) = web_handle {
-            let _ = h.join();
-        }
-        report = Some(outcome);
-        Ok(())
-    });
-    scope_result?;
-    let (points, rec, solve_error) = match report {
-        Some(r) => r?,
-        None => (0, None, None),
-    };
-    // The scan is finished: its state moves beside its cloud.
-    let done_state = opts.out_dir.join(format!("{}.state", scan.id));
-    let _ = std::fs::remove_dir_all(&done_state);
-    if let Err(e) = std::fs::rename(&scan.state, &done_state) {
-        tracing::warn!("cannot move {} aside: {e}", scan.state.display());
-    }
-    let report = ServeReport {
-        resumed_frames,
-        epochs: solver.epoch(),
-        cloud: scan.cloud.clone(),
-        points,
-        cpu_seconds: cpu_seconds() - cpu_start,
-        capture_error: lock(&capture_error).clone(),
-        checkpoint_error: checkpoint.error().map(str::to_string),
-        reconstruction: rec,
-        solve_error,
-        ..ServeReport::counted(&scan.id, &opts.input_id, &shared, &hub, started)
-    };
-    if report.decode_errors > 0 {
-        tracing::warn!(
-            "{} of {} frames could not be decoded and were skipped",
-            report.decode_errors,
-            report.frames_in
-        );
-    }
-    let text = serde_json::to_string_pretty(&report).unwrap_or_default();
-    write_atomic(&scan.report, text.as_bytes())?;
-    Ok(report)
+    Ok(solver)
 }
 
 /// Extraction threads at most, whatever `[serve] workers` or `--workers` say.
@@ -851,79 +616,6 @@ fn seconds(secs: f64, lo: f64, hi: f64) -> Duration {
     Duration::try_from_secs_f64(s).unwrap_or(Duration::from_secs_f64(lo))
 }
 
-/// Open files kept only to be closed when they are needed (see [`RESERVED_FDS`]).
-struct FdReserve(Vec<std::fs::File>);
-
-impl FdReserve {
-    fn new(n: usize) -> Self {
-        Self(
-            (0..n)
-                .filter_map(|_| std::fs::File::open("/dev/null").ok())
-                .collect(),
-        )
-    }
-
-    fn release(&mut self) {
-        self.0.clear();
-    }
-}
-
-/// Takes the exclusive lock of `out_dir` (`out_dir/lock`, holding the owner's pid),
-/// for as long as the returned file lives.
-fn lock_out_dir(out_dir: &Path) -> Result<std::fs::File, ServeError> {
-    use std::io::{Read, Seek, Write};
-    let path = out_dir.join("lock");
-    let io = |what| {
-        let path = path.clone();
-        move |source| ServeError::Io { what, path, source }
-    };
-    std::fs::create_dir_all(out_dir).map_err(io("cannot create the directory of"))?;
-    let mut file = std::fs::OpenOptions::new()
-        .read(true)
-        .write(true)
-        .create(true)
-        .truncate(false)
-        .open(&path)
-        .map_err(io("cannot open"))?;
-    match file.try_lock() {
-        Ok(()) => {}
-        Err(std::fs::TryLockError::WouldBlock) => {
-            let mut pid = String::new();
-            let _ = file.read_to_string(&mut pid);
-            let pid = crate::truncate_echo(pid.trim());
-            return Err(ServeError::Busy {
-                path: out_dir.to_path_buf(),
-                pid: if pid.is_empty() {
-                    "unknown".into()
-                } else {
-                    pid
-                },
-            });
-        }
-        Err(std::fs::TryLockError::Error(e)) => return Err(io("cannot lock")(e)),
-    }
-    file.set_len(0).map_err(io("cannot write"))?;
-    file.rewind().map_err(io("cannot write"))?;
-    writeln!(file, "{}", std::process::id()).map_err(io("cannot write"))?;
-    Ok(file)
-}
-
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ServeError> {
-    let tmp = path.with_extension("tmp");
-    let io = |what| {
-        move |source| ServeError::Io {
-            what,
-            path: path.to_path_buf(),
-            source,
-        }
-    };
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(io("cannot create the folder of"))?;
-    }
-    std::fs::write(&tmp, bytes).map_err(io("cannot write"))?;
-    std::fs::rename(&tmp, path).map_err(io("cannot write"))
-}
-
 /// Process CPU time (user + system), seconds.
 pub fn cpu_seconds() -> f64 {
     // /proc/self/stat fields 14 and 15: utime and stime in clock ticks (100 Hz on
@@ -938,199 +630,6 @@ pub fn cpu_seconds() -> f64 {
             Some((ut + st) / 100.0)
         })
         .unwrap_or(0.0)
-}
-
-#[allow(clippy::too_many_arguments)]
-fn solver_loop(
-    solver: &mut Incremental,
-    results: &Receiver<Extracted>,
-    checkpoint: &mut Checkpoint,
-    scan: &ScanFiles,
-    background: &LiveBackground,
-    hub: &net::Hub,
-    feed: &net::StatusFeed,
-    shared: &Shared,
-    first_index: u64,
-) {
-    let mut pending: BTreeMap<u64, Extracted> = BTreeMap::new();
-    let mut next = first_index;
-    let mut background_saved = false;
-    let mut epoch_seen = solver.epoch();
-    if epoch_seen > 0 {
-        // A resumed scan with a solution already: the stream starts from it.
-        hub.begin_epoch(epoch_seen, EpochReason::First);
-    }
-    loop {
-        shared.solver_beats.fetch_add(1, Ordering::Relaxed);
-        match results.recv_timeout(Duration::from_millis(100)) {
-            Ok(e) => {
-                pending.insert(e.meta.index, e);
-            }
-            Err(RecvTimeoutError::Timeout) => continue,
-            Err(RecvTimeoutError::Disconnected) => {
-                if !pending.is_empty() {
-                    tracing::warn!(
-                        "{} frames after a gap at frame {next} were not processed",
-                        pending.len()
-                    );
-                }
-                break;
-            }
-        }
-        while let Some(e) = pending.remove(&next) {
-            if !background_saved {
-                if let Some(bg) = background.first() {
-                    if !scan.state.join("background.png").exists() {
-                        checkpoint.save_background(&scan.state, bg.image());
-                    }
-                    solver.set_colour_source(Arc::new(bg.image().clone()));
-                    background_saved = true;
-                }
-            }
-            if !e.curves.is_empty() {
-                shared.frames_with_laser.fetch_add(1, Ordering::Relaxed);
-            }
-            checkpoint.append(&FrameCurves {
-                index: e.meta.index,
-                source_position: e.meta.source_position,
-                sequence: e.meta.sequence,
-                timestamp_nanos: e.meta.timestamp_nanos,
-                curves: e.curves.clone(),
-            });
-            let t = Instant::now();
-            let out = solver.add_frame(e.curves, e.meta.received_nanos);
-            if let Some((epoch, reason)) = out.epoch {
-                hub.begin_epoch(epoch, reason);
-                tracing::info!(
-                    epoch,
-                    planes = solver.counts.planes,
-                    "new epoch of the cloud"
-                );
-                feed.publish(status::event_line("epoch", &format!("epoch {epoch}")));
-                epoch_seen = epoch;
-            }
-            if !out.points.is_empty() {
-                hub.push_points(stream::points(epoch_seen, out.captured_nanos, &out.points));
-            }
-            shared.frames_processed.fetch_add(1, Ordering::Relaxed);
-            *lock(&shared.solver) = solver.counts;
-            let mut times = lock(&shared.solver_frame_micros);
-            if times.len() < 1 << 20 {
-                times.push(t.elapsed().as_micros() as u64);
-            }
-            drop(times);
-            tracing::trace!(frame = e.meta.index, "frame processed");
-            next += 1;
-        }
-    }
-    checkpoint.sync();
-}
-
-type Finished = (
-    usize,
-    Option<crate::reconstruct::ReconstructReport>,
-    Option<String>,
-);
-
-#[allow(clippy::too_many_arguments)]
-fn finish(
-    solver: &mut Incremental,
-    checkpoint: &mut Checkpoint,
-    reserve: &mut FdReserve,
-    scan: &ScanFiles,
-    hub: &net::Hub,
-    feed: &net::StatusFeed,
-    shared: &Shared,
-    opts: &ServeOptions,
-) -> Result<Finished, ServeError> {
-    checkpoint.sync();
-    *lock(&shared.live_solver) = solver.counts;
-    feed.publish(status::event_line(
-        "final_solve",
-        "capture stopped; final solve",
-    ));
-    let (cloud, rec, err) = match solver.finish() {
-        Ok(rec) => (rec.cloud, Some(rec.report), None),
-        Err(e) => {
-            let msg = anyhow_like(&e);
-            tracing::warn!("final solve: {msg}; writing an empty cloud");
-            // A refused cloud still has the report of what the solve found.
-            let report = match e {
-                crate::reconstruct::ReconstructError::Pipeline(
-                    crate::pipeline::PipelineError::Refused { report, .. },
-                ) => Some(*report),
-                _ => None,
-            };
-            (
-                crate::ply::Cloud {
-                    colors: Some(Vec::new()),
-                    frames: Some(Vec::new()),
-                    lasers: Some(Vec::new()),
-                    ..Default::default()
-                },
-                report,
-                Some(msg),
-            )
-        }
-    };
-    // The descriptors held back are released only now, for the cloud and the report:
-    // released before the final solve, clients waiting to be accepted took them.
-    reserve.release();
-    if let Some(dir) = scan.cloud.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|source| ServeError::Io {
-            what: "cannot create",
-            path: dir.to_path_buf(),
-            source,
-        })?;
-    }
-    let comments = vec![
-        format!("crossline serve scan {}", scan.id),
-        format!("input {}", opts.input_id),
-        "camera frame, OpenCV axes; one global scale (see the report's scale_mode)".to_string(),
-    ];
-    if crate::e57::is_e57(&scan.cloud) {
-        let meta = crate::e57::ScanMeta {
-            name: scan.id.clone(),
-            description: format!("crossline serve; {}; scale {:?}", opts.input_id, opts.scale),
-            sensor_model: Some(format!(
-                "{} at {}x{}",
-                opts.input_id, opts.camera.width, opts.camera.height
-            )),
-            // The capture has just stopped.
-            acquisition_end: Some(std::time::SystemTime::now()),
-            coordinate_metadata: Some(comments[2].clone()),
-            ..Default::default()
-        };
-        crate::e57::write_e57_atomic(&scan.cloud, &cloud, &meta)?;
-    } else {
-        crate::ply::write_ply_atomic(&scan.cloud, &cloud, &comments)?;
-    }
-    tracing::info!(
-        points = cloud.len(),
-        "cloud written to {}",
-        scan.cloud.display()
-    );
-    hub.begin_epoch(solver.epoch(), EpochReason::Final);
-    hub.push_points(stream::points(
-        solver.epoch(),
-        0,
-        &stream::points_of(&cloud, 0..cloud.len()),
-    ));
-    hub.end(cloud.len() as u64);
-    *lock(&shared.solver) = solver.counts;
-    Ok((cloud.len(), rec, err))
-}
-
-/// An error with its chain of causes, one line.
-fn anyhow_like(e: &dyn std::error::Error) -> String {
-    let mut s = e.to_string();
-    let mut src = e.source();
-    while let Some(c) = src {
-        s.push_str(": ");
-        s.push_str(&c.to_string());
-        src = c.source();
-    }
-    s
 }
 
 #[cfg(test)]
@@ -1222,20 +721,6 @@ mod tests {
 
     fn header_len(h: &DumpHeader) -> u64 {
         (42 + 2 + h.device.len() + h.card.len() + 4) as u64
-    }
-
-    #[test]
-    fn a_second_daemon_on_the_same_out_dir_is_refused_naming_the_first() {
-        let dir = tempfile::tempdir().expect("tempdir");
-        let held = lock_out_dir(dir.path()).expect("first");
-        let err = lock_out_dir(dir.path()).expect_err("second");
-        let msg = err.to_string();
-        assert!(
-            msg.contains(&format!("pid {}", std::process::id())),
-            "{msg}"
-        );
-        drop(held);
-        lock_out_dir(dir.path()).expect("free again once the first is gone");
     }
 
     #[test]

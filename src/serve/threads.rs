@@ -11,6 +11,7 @@ use crossbeam_channel::Sender;
 use image::RgbImage;
 
 use super::background::{self, LiveBackground};
+use super::listeners::spawn_named;
 use super::status::{DeviceState, Status};
 use super::{
     lock, net, notify, status_lines, Extracted, Recorder, ServeError, Shared, WORKER_STACK_BYTES,
@@ -45,18 +46,12 @@ impl<'env> Capture<'env> {
         producer: ring::Producer,
         recorder: Option<Recorder>,
     ) -> Result<(), ServeError> {
-        std::thread::Builder::new()
-            .name("capture".into())
-            .spawn_scoped(s, move || {
-                let frames = capture_loop(source, producer, recorder, &self);
-                self.background.end_at(frames);
-                self.done.store(true, Ordering::Relaxed);
-            })
-            .map(drop)
-            .map_err(|source| ServeError::Thread {
-                name: "capture".into(),
-                source,
-            })
+        spawn_named(s, "capture", move || {
+            let frames = capture_loop(source, producer, recorder, &self);
+            self.background.end_at(frames);
+            self.done.store(true, Ordering::Relaxed);
+        })
+        .map(drop)
     }
 }
 
@@ -363,7 +358,17 @@ pub(super) struct StatusThread<'a> {
     pub interval: Duration,
 }
 
-impl StatusThread<'_> {
+impl<'env> StatusThread<'env> {
+    /// Spawns the `status` thread in `s`: [`Self::run`].
+    pub(super) fn spawn<'scope>(
+        self,
+        s: &'scope std::thread::Scope<'scope, 'env>,
+        stop: &'env AtomicBool,
+        capture_done: &'env AtomicBool,
+    ) -> Result<(), ServeError> {
+        spawn_named(s, "status", move || self.run(stop, capture_done)).map(drop)
+    }
+
     /// Publishes a status line every interval and on events, and talks to systemd
     /// (`READY`, `STATUS`, `WATCHDOG` from pipeline progress), until `stop`.
     pub(super) fn run(&self, stop: &AtomicBool, capture_done: &AtomicBool) {
