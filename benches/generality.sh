@@ -54,6 +54,8 @@
 #              (the lens's), so the factor the solve should find is 1 / FOCAL_OFF with the
 #              distortion applied at the corrected radius
 #   TIMEOUT    seconds after which a reconstruction counts as failed (default 0: none)
+#   DROP_SIMS  1: delete each simulation and the run's PLYs once its row is printed (a
+#              300-frame configuration takes 1-2 GB; both draws do not fit a small disk)
 #
 # How long (2 cores, measured on room and on random seeds 2 and 3): a configuration at
 # 300 frames takes 80-140 s the first time: simulate 28-100 s (under water is the
@@ -350,6 +352,8 @@ for seed in $SEEDS; do
     line=$(row "$seed" "$sim" "$run" "$self_secs" "$SECS" "$self_err" "$ERR")
     echo "$line" >> "$TSV"
     show "$line"
+    # The run's clouds are the big part after the simulation; keep the reports.
+    if [ "${DROP_SIMS:-0}" = 1 ]; then rm -rf "$sim" "$run"/*.ply; fi
 done
 summary "$TSV"
 echo "rows: $TSV"
