@@ -1,7 +1,8 @@
 //! Checks on a frame's curves once they are linked: the share of points measured where
 //! the laser's own channel is clipped (and the advice when it is large), a curve of one
-//! laser that only repeats another laser's (one overexposed laser seen as two), and
-//! whether both lasers of a two-laser setting are in the frames at all.
+//! laser that only repeats another laser's (one overexposed laser seen as two), a curve
+//! that runs along an edge of the scene (a chroma fringe, without a laser-off frame),
+//! and whether both lasers of a two-laser setting are in the frames at all.
 //!
 //! Owns the counters across frames and the one-time warnings; changes no point.
 
@@ -91,6 +92,74 @@ pub(crate) fn drop_repeats(
     let mut k = keep.iter();
     curves.retain(|_| *k.next().unwrap_or(&true));
     dropped
+}
+
+/// Half the distance (px) across a curve over which [`drop_edge_fringes`] compares the
+/// luma: one 4:2:0 chroma block, within which a fringe lies beside its edge.
+const FRINGE_HALF_SPAN_PX: f32 = 2.0;
+
+/// Drops the curves that run along an edge of the scene rather than across it; returns
+/// how many points were dropped.
+///
+/// Chroma subsampled over 2x2 pixels (MJPEG, JPEG) leaves a one-pixel line of pure
+/// colour on the bright side of every edge that cuts a block, as strong as a faint
+/// stripe and of any hue. A laser adds light symmetric about its ridge, so the luma on
+/// the two sides of a stripe's centre differs only by the surface under it; beside a
+/// fringe it differs by the edge's whole contrast. A point *runs along an edge* when the
+/// luma step across it, [`FRINGE_HALF_SPAN_PX`] to either side along its normal, is
+/// larger than its own ridge strength; a curve goes when most of its points do. A
+/// stripe crossing an edge meets it at a few points, so it stays.
+pub(crate) fn drop_edge_fringes(curves: &mut Vec<Curve>, frame: &RgbImage) -> usize {
+    let (w, h) = (frame.width() as usize, frame.height() as usize);
+    let raw = frame.as_raw();
+    let luma = |x: f32, y: f32| -> Option<f32> {
+        if !(x >= 0.0 && y >= 0.0) {
+            return None;
+        }
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        if x0 + 1 >= w || y0 + 1 >= h {
+            return None;
+        }
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let at = |xx: usize, yy: usize| {
+            let p = &raw[3 * (yy * w + xx)..];
+            0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32
+        };
+        let top = at(x0, y0) * (1.0 - fx) + at(x0 + 1, y0) * fx;
+        let bottom = at(x0, y0 + 1) * (1.0 - fx) + at(x0 + 1, y0 + 1) * fx;
+        Some(top * (1.0 - fy) + bottom * fy)
+    };
+    let along_edge = |c: &Curve| {
+        let n = c.points_px.len();
+        let mut along = 0;
+        for i in 0..n {
+            let (a, b) = (
+                c.points_px[i.saturating_sub(2)],
+                c.points_px[(i + 2).min(n - 1)],
+            );
+            let (tx, ty) = (b[0] - a[0], b[1] - a[1]);
+            let len = tx.hypot(ty);
+            if len <= 0.0 {
+                continue;
+            }
+            let (nx, ny) = (
+                -ty / len * FRINGE_HALF_SPAN_PX,
+                tx / len * FRINGE_HALF_SPAN_PX,
+            );
+            let p = c.points_px[i];
+            let step = match (luma(p[0] + nx, p[1] + ny), luma(p[0] - nx, p[1] - ny)) {
+                (Some(u), Some(v)) => (u - v).abs(),
+                _ => continue,
+            };
+            if step > c.strength[i] {
+                along += 1;
+            }
+        }
+        2 * along > n
+    };
+    let before: usize = curves.iter().map(|c| c.points_px.len()).sum();
+    curves.retain(|c| !along_edge(c));
+    before - curves.iter().map(|c| c.points_px.len()).sum::<usize>()
 }
 
 /// Counters across frames for the one-time warnings.

@@ -449,6 +449,9 @@ pub struct ExtractStats {
     pub clipped_points: usize,
     /// Points of curves dropped as another laser's stripe seen a second time.
     pub repeated_points: usize,
+    /// Points of curves dropped as running along an edge of the scene (without a
+    /// laser-off frame: chroma fringes).
+    pub fringe_points: usize,
 }
 
 /// The per-frame extractor; owns and reuses all its scratch buffers.
@@ -646,6 +649,11 @@ impl Extractor {
             self.link_into(laser as u8, &mut curves, true);
             self.stats.active_tiles += self.active[laser].iter().filter(|a| **a).count();
             self.stats.ridge_points += self.detector.points.len();
+        }
+        if self.local_active {
+            // With a laser-off frame, a fringe is in the background too and never
+            // becomes a ridge; a stripe along a real edge would only be lost.
+            self.stats.fringe_points = checks::drop_edge_fringes(&mut curves, src.frame());
         }
         if self.params.lasers.len() > 1 {
             let size = (self.detector.width, self.detector.height);

@@ -86,6 +86,54 @@ fn checkerboard_without_laser_gives_no_curve() {
     );
 }
 
+/// A cream-and-dark checkerboard through 4:2:0 chroma (as in MJPEG), blue and green
+/// lasers. Chroma averaged over 2x2 pixels leaves a one-pixel pure-blue line on the
+/// cream side of every edge that cuts a block: no curve without a laser-off frame. A
+/// blue stripe across the same board is still found, within 0.1 px on average.
+#[test]
+fn chroma_fringes_of_a_board_are_not_stripes() {
+    let (w, h) = (320u32, 240u32);
+    let board = |x: f64, y: f64| {
+        if ((x / 37.0) as i64 + (y / 37.0) as i64) % 2 == 0 {
+            [235.0, 225.0, 190.0]
+        } else {
+            [30.0, 28.0, 26.0]
+        }
+    };
+    let camera = Camera::with_fov(w, h, 1.0);
+    let params = ExtractParams {
+        lasers: LaserColour::named(["blue", "green"]),
+        ..ExtractParams::default()
+    };
+    let mut ex = Extractor::new(&params, &camera).expect("extractor");
+    let subsampled = |mut img: RgbImage| {
+        crate::simulate::realism::subsample_chroma(&mut img, (w as usize, h as usize));
+        img
+    };
+    let bare = subsampled(frame((w, h), &board, None, 2.0));
+    let curves = ex.extract(&bare, &Background::local(w, h));
+    let points: usize = curves.iter().map(|c| c.points_px.len()).sum();
+    assert!(
+        curves.is_empty(),
+        "{} curves ({points} points) on a board with no laser",
+        curves.len()
+    );
+    let (y0, slope) = (118.4, 0.09);
+    let stripe = (y0, slope, 1.5, 90.0, [0.05, 0.25, 1.0]);
+    let lit = subsampled(frame((w, h), &board, Some(stripe), 2.0));
+    let curves = ex.extract(&lit, &Background::local(w, h));
+    let blue: Vec<Curve> = curves.into_iter().filter(|c| c.laser == 0).collect();
+    let e = distance_errors(&blue, (y0, slope), 20.0, w as f64);
+    let near = e.iter().filter(|d| d.abs() <= 1.0).count();
+    let mean = e.iter().filter(|d| d.abs() <= 1.0).sum::<f64>() / near.max(1) as f64;
+    assert!(
+        near >= 250,
+        "{near} of {} blue points on the stripe",
+        e.len()
+    );
+    assert!(mean.abs() <= 0.1, "mean offset {mean}");
+}
+
 /// A red stripe so bright that red clips over ~10 px, its core still in green and
 /// blue (crosstalk) on a grey surface: found within 0.1 px, its clipped share counted.
 #[test]
