@@ -95,7 +95,7 @@ pub(crate) fn drop_repeats(
 }
 
 /// Half the distance (px) across a curve over which [`drop_edge_fringes`] compares the
-/// luma: one 4:2:0 chroma block, within which a fringe lies beside its edge.
+/// light: one 4:2:0 chroma block, within which a fringe lies beside its edge.
 const FRINGE_HALF_SPAN_PX: f32 = 2.0;
 
 /// Drops the curves that run along an edge of the scene rather than across it; returns
@@ -103,16 +103,19 @@ const FRINGE_HALF_SPAN_PX: f32 = 2.0;
 ///
 /// Chroma subsampled over 2x2 pixels (MJPEG, JPEG) leaves a one-pixel line of pure
 /// colour on the bright side of every edge that cuts a block, as strong as a faint
-/// stripe and of any hue. A laser adds light symmetric about its ridge, so the luma on
-/// the two sides of a stripe's centre differs only by the surface under it; beside a
-/// fringe it differs by the edge's whole contrast. A point *runs along an edge* when the
-/// luma step across it, [`FRINGE_HALF_SPAN_PX`] to either side along its normal, is
-/// larger than its own ridge strength; a curve goes when most of its points do. A
-/// stripe crossing an edge meets it at a few points, so it stays.
+/// stripe and of any hue; the edge of a patch of the laser's own colour narrower than
+/// the local background's opening is a ridge of its hue too. A laser adds light
+/// symmetric about its ridge, in every channel, so the two sides of a stripe's centre
+/// differ only by the surface under it; beside an edge they differ by its contrast. A
+/// point *runs along an edge* when the largest step across it, over the three channels
+/// [`FRINGE_HALF_SPAN_PX`] to either side along its normal, is larger than its own
+/// ridge strength; a curve goes when most of its points do. A stripe crossing an edge
+/// meets it at a few points, so it stays.
 pub(crate) fn drop_edge_fringes(curves: &mut Vec<Curve>, frame: &RgbImage) -> usize {
     let (w, h) = (frame.width() as usize, frame.height() as usize);
     let raw = frame.as_raw();
-    let luma = |x: f32, y: f32| -> Option<f32> {
+    // The frame's three channels at (x, y), bilinear.
+    let rgb = |x: f32, y: f32| -> Option<[f32; 3]> {
         if !(x >= 0.0 && y >= 0.0) {
             return None;
         }
@@ -121,13 +124,20 @@ pub(crate) fn drop_edge_fringes(curves: &mut Vec<Curve>, frame: &RgbImage) -> us
             return None;
         }
         let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-        let at = |xx: usize, yy: usize| {
-            let p = &raw[3 * (yy * w + xx)..];
-            0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32
-        };
-        let top = at(x0, y0) * (1.0 - fx) + at(x0 + 1, y0) * fx;
-        let bottom = at(x0, y0 + 1) * (1.0 - fx) + at(x0 + 1, y0 + 1) * fx;
-        Some(top * (1.0 - fy) + bottom * fy)
+        let weights = [
+            (0, 0, (1.0 - fx) * (1.0 - fy)),
+            (1, 0, fx * (1.0 - fy)),
+            (0, 1, (1.0 - fx) * fy),
+            (1, 1, fx * fy),
+        ];
+        let mut v = [0.0f32; 3];
+        for (dx, dy, k) in weights {
+            let p = &raw[3 * ((y0 + dy) * w + x0 + dx)..];
+            for c in 0..3 {
+                v[c] += k * p[c] as f32;
+            }
+        }
+        Some(v)
     };
     let along_edge = |c: &Curve| {
         let n = c.points_px.len();
@@ -147,10 +157,10 @@ pub(crate) fn drop_edge_fringes(curves: &mut Vec<Curve>, frame: &RgbImage) -> us
                 tx / len * FRINGE_HALF_SPAN_PX,
             );
             let p = c.points_px[i];
-            let step = match (luma(p[0] + nx, p[1] + ny), luma(p[0] - nx, p[1] - ny)) {
-                (Some(u), Some(v)) => (u - v).abs(),
-                _ => continue,
+            let (Some(u), Some(v)) = (rgb(p[0] + nx, p[1] + ny), rgb(p[0] - nx, p[1] - ny)) else {
+                continue;
             };
+            let step = (0..3).map(|k| (u[k] - v[k]).abs()).fold(0.0, f32::max);
             if step > c.strength[i] {
                 along += 1;
             }
