@@ -52,19 +52,24 @@ fn distance_errors(curves: &[Curve], (y0, slope): (f64, f64), margin: f64, w: f6
         .collect()
 }
 
+/// A checkerboard of 37 px squares, `light` and `dark`, as a surface for [`frame`].
+fn checkerboard(light: [f64; 3], dark: [f64; 3]) -> impl Fn(f64, f64) -> [f64; 3] {
+    move |x, y| {
+        if ((x / 37.0) as i64 + (y / 37.0) as i64) % 2 == 0 {
+            light
+        } else {
+            dark
+        }
+    }
+}
+
 /// A warm-lit checkerboard, bright white squares (tinted as under a lamp, so their
 /// hue is red's), with no laser: no curve without a laser-off frame. Against black
 /// (no background, as before the local one) its squares' edges are curves.
 #[test]
 fn checkerboard_without_laser_gives_no_curve() {
     let (w, h) = (320u32, 240u32);
-    let board = |x: f64, y: f64| {
-        if ((x / 37.0) as i64 + (y / 37.0) as i64) % 2 == 0 {
-            [250.0, 215.0, 180.0]
-        } else {
-            [40.0, 38.0, 36.0]
-        }
-    };
+    let board = checkerboard([250.0, 215.0, 180.0], [40.0, 38.0, 36.0]);
     let img = frame((w, h), &board, None, 2.0);
     let camera = Camera::with_fov(w, h, 1.0);
     let mut ex = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
@@ -93,13 +98,7 @@ fn checkerboard_without_laser_gives_no_curve() {
 #[test]
 fn chroma_fringes_of_a_board_are_not_stripes() {
     let (w, h) = (320u32, 240u32);
-    let board = |x: f64, y: f64| {
-        if ((x / 37.0) as i64 + (y / 37.0) as i64) % 2 == 0 {
-            [235.0, 225.0, 190.0]
-        } else {
-            [30.0, 28.0, 26.0]
-        }
-    };
+    let board = checkerboard([235.0, 225.0, 190.0], [30.0, 28.0, 26.0]);
     let camera = Camera::with_fov(w, h, 1.0);
     let params = ExtractParams {
         lasers: LaserColour::named(["blue", "green"]),
