@@ -452,54 +452,26 @@ pub fn run(
     let (producer, consumer) = ring::ring(cfg.ring_slots.max(2), slot_bytes);
     let (result_tx, result_rx) = bounded::<Extracted>(2 * workers + 2);
     let notifier = notify::Notifier::from_env();
-    let (workers_stop, status_stop, capture_done) = Default::default();
-    let capture_error = Mutex::new(None);
+    let flags = threads::Flags::default();
+    let pipeline = threads::Pipeline {
+        opts: &opts,
+        header: &header,
+        scan: &scan,
+        shared: &shared,
+        background: &background,
+        hub: &hub,
+        feed: &feed,
+        notifier: &notifier,
+        stop: &stop,
+        flags: &flags,
+        started,
+        first_index: resumed_frames,
+    };
     let outcome = std::thread::scope(|s| {
-        let threads = || -> Result<_, ServeError> {
-            let serving = listeners.spawn(s, &opts.camera, &cfg)?;
-            let recorder = opts.record.then(|| Recorder::new(&scan, &header, &cfg));
-            let capture = threads::Capture {
-                shared: &shared,
-                stop: &stop,
-                first_index: resumed_frames,
-                started,
-                error: &capture_error,
-                background: &background,
-                done: &capture_done,
-            };
-            capture.spawn(s, source.as_mut(), producer, recorder)?;
-            let ctx = threads::WorkerContext {
-                header: &header,
-                camera: &opts.camera,
-                params: &opts.config.extract,
-                shared: &shared,
-                background: &background,
-                stop: &workers_stop,
-            };
-            threads::spawn_workers(s, workers, &consumer, &result_tx, ctx)?;
-            drop((consumer, result_tx));
-            let status = threads::StatusThread {
-                shared: &shared,
-                hub: &hub,
-                feed: &feed,
-                notifier: &notifier,
-                scan_id: &scan.id,
-                started,
-                interval: Duration::from_millis(cfg.status_interval_ms.clamp(50, 3_600_000)),
-            };
-            status.spawn(s, &status_stop, &capture_done)?;
-            Ok(serving)
-        };
-        let serving = match threads() {
-            Ok(serving) => serving,
-            Err(e) => {
-                // Whatever started must end for the scope to end.
-                for flag in [&*stop, &workers_stop, &status_stop] {
-                    flag.store(true, Ordering::Relaxed);
-                }
-                return Err(e);
-            }
-        };
+        // Should a thread fail to start, `serving` is dropped and stops the listeners.
+        let serving = listeners.spawn(s, &opts.camera, &cfg)?;
+        let ring = (producer, consumer);
+        pipeline.start(s, source.as_mut(), ring, result_tx, workers)?;
         // The solver runs on this thread. It owns the results' receiver: should it end
         // early, the workers' sends fail and they end too, instead of waiting for ever.
         let live = solver::Live {
@@ -515,11 +487,11 @@ pub fn run(
             &background,
             resumed_frames,
         );
-        workers_stop.store(true, Ordering::Relaxed);
+        flags.workers_stop.store(true, Ordering::Relaxed);
         let outcome = live.finish(&mut solver, &mut checkpoint, &mut reserve, &opts);
         notifier.notify("STOPPING=1");
         serving.stop();
-        status_stop.store(true, Ordering::Relaxed);
+        flags.status_stop.store(true, Ordering::Relaxed);
         outcome
     });
     let (points, reconstruction, solve_error) = outcome?;
@@ -529,7 +501,7 @@ pub fn run(
         cloud: scan.cloud.clone(),
         points,
         cpu_seconds: cpu_seconds() - cpu_start,
-        capture_error: lock(&capture_error).clone(),
+        capture_error: lock(&flags.capture_error).clone(),
         checkpoint_error: checkpoint.error().map(str::to_string),
         reconstruction,
         solve_error,

@@ -1,7 +1,8 @@
-//! The capture thread and the extraction workers of [`super::run`]: frames from the
-//! source into the ring (never waiting on the workers, except in a lossless replay),
-//! and from the ring through decoding, the background policy ([`super::background`])
-//! and extraction to the solver.
+//! The capture thread, the extraction workers and the status thread of [`super::run`]:
+//! frames from the source into the ring (never waiting on the workers, except in a
+//! lossless replay), and from the ring through decoding, the background policy
+//! ([`super::background`]) and extraction to the solver; [`Pipeline::start`] starts
+//! them together.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
@@ -12,15 +13,115 @@ use image::RgbImage;
 
 use super::background::{self, LiveBackground};
 use super::listeners::spawn_named;
+use super::scan::ScanFiles;
 use super::status::{DeviceState, Status};
 use super::{
-    lock, net, notify, status_lines, Extracted, Recorder, ServeError, Shared, WORKER_STACK_BYTES,
+    lock, net, notify, status_lines, Extracted, Recorder, ServeError, ServeOptions, Shared,
+    WORKER_STACK_BYTES,
 };
 use crate::camera::Camera;
 use crate::capture::dump::{decode_rgb, DumpHeader};
 use crate::capture::{CaptureError, FrameSource, Next};
 use crate::extract::{Background, Curve, ExtractParams, Extractor};
 use crate::ring::{self, FrameMeta, Recv, Slot};
+
+/// The flags the threads of one run are stopped and watched by.
+#[derive(Default)]
+pub(super) struct Flags {
+    /// Set when the solver has ended: the workers give up parked frames.
+    pub workers_stop: AtomicBool,
+    pub status_stop: AtomicBool,
+    /// Set when capture has ended.
+    pub capture_done: AtomicBool,
+    /// Why capture stopped, if a source failed.
+    pub capture_error: Mutex<Option<String>>,
+}
+
+/// What the capture, worker and status threads of one run read, all owned by
+/// [`super::run`] for the threads' scope.
+pub(super) struct Pipeline<'a> {
+    pub opts: &'a ServeOptions,
+    pub header: &'a DumpHeader,
+    pub scan: &'a ScanFiles,
+    pub shared: &'a Shared,
+    pub background: &'a LiveBackground,
+    pub hub: &'a net::Hub,
+    pub feed: &'a net::StatusFeed,
+    pub notifier: &'a notify::Notifier,
+    /// Set by the caller (a signal) or the end of a replay: capture stops.
+    pub stop: &'a AtomicBool,
+    pub flags: &'a Flags,
+    pub started: Instant,
+    /// The number the first frame gets (a resumed scan goes on counting).
+    pub first_index: u64,
+}
+
+impl<'env> Pipeline<'env> {
+    /// Starts `capture` (reading `source` into `producer`), `workers` extraction
+    /// threads (from `consumer` to `results`) and `status`, in `s`. Should one fail to
+    /// start, those already running are told to stop, so that the scope can end.
+    pub(super) fn start<'scope>(
+        &self,
+        s: &'scope std::thread::Scope<'scope, 'env>,
+        source: &'env mut dyn FrameSource,
+        (producer, consumer): (ring::Producer, ring::Consumer),
+        results: Sender<Extracted>,
+        workers: usize,
+    ) -> Result<(), ServeError> {
+        let started = self.spawn_all(s, source, producer, consumer, results, workers);
+        if started.is_err() {
+            for flag in [self.stop, &self.flags.workers_stop, &self.flags.status_stop] {
+                flag.store(true, Ordering::Relaxed);
+            }
+        }
+        started
+    }
+
+    fn spawn_all<'scope>(
+        &self,
+        s: &'scope std::thread::Scope<'scope, 'env>,
+        source: &'env mut dyn FrameSource,
+        producer: ring::Producer,
+        consumer: ring::Consumer,
+        results: Sender<Extracted>,
+        workers: usize,
+    ) -> Result<(), ServeError> {
+        let cfg = &self.opts.config.serve;
+        let recorder = self
+            .opts
+            .record
+            .then(|| Recorder::new(self.scan, self.header, cfg));
+        let capture = Capture {
+            shared: self.shared,
+            stop: self.stop,
+            first_index: self.first_index,
+            started: self.started,
+            error: &self.flags.capture_error,
+            background: self.background,
+            done: &self.flags.capture_done,
+        };
+        capture.spawn(s, source, producer, recorder)?;
+        let ctx = WorkerContext {
+            header: self.header,
+            camera: &self.opts.camera,
+            params: &self.opts.config.extract,
+            shared: self.shared,
+            background: self.background,
+            stop: &self.flags.workers_stop,
+        };
+        spawn_workers(s, workers, &consumer, &results, ctx)?;
+        let status = StatusThread {
+            shared: self.shared,
+            hub: self.hub,
+            feed: self.feed,
+            notifier: self.notifier,
+            scan_id: &self.scan.id,
+            started: self.started,
+            interval: Duration::from_millis(cfg.status_interval_ms.clamp(50, 3_600_000)),
+        };
+        status.spawn(s, &self.flags.status_stop, &self.flags.capture_done)
+    }
+}
 
 /// What the capture thread reads and tells.
 pub(super) struct Capture<'a> {
