@@ -299,6 +299,11 @@ enum FramePass<'a> {
 }
 
 impl FramePass<'_> {
+    /// Whether any frame can be read again, in any order (not a video's one pass).
+    pub fn random_access(&self) -> bool {
+        matches!(self, Self::Random(..))
+    }
+
     /// `f(state, i, frame i)` for every `i` of `wanted` (ascending, after those of any
     /// earlier call), in parallel, the results in that order; each thread's `state` comes
     /// from `init` and is reused. A video ends at its last whole frame: the result may

@@ -209,14 +209,19 @@ impl Rolling {
     }
 
     /// The samples version `v` is made of, and whether every one of them has come (or
-    /// lies past the end). Version 0 waits for every warm-up frame: only then is it
-    /// known whether the stream outlasts the warm-up.
+    /// lies past the end). Version 0 of a stream whose end is not known yet waits for
+    /// every warm-up frame: only then is it known whether the stream outlasts the
+    /// warm-up.
     fn wanted(&self, v: usize) -> (Vec<usize>, bool) {
         let came = |i: &usize| *i >= self.end || self.samples.contains_key(i);
         if v == 0 {
             let m = self.policy.w.min(self.end);
-            let all = (0..m).all(|i| came(&i));
-            (self.policy.warmup_samples(m), all)
+            let samples = self.policy.warmup_samples(m);
+            // Which frames are the samples is known once the stream's end is, or once
+            // it has outlasted the warm-up.
+            let known = self.end != usize::MAX || (0..m).all(|i| came(&i));
+            let all = known && samples.iter().all(came);
+            (samples, all)
         } else {
             let wanted = self.policy.samples_of(v);
             let all = wanted.iter().all(came);
@@ -388,6 +393,35 @@ pub(crate) mod tests {
         assert!(r.version(7).is_none());
         r.offer(200, None);
         assert!(r.version(7).is_some(), "an undecodable sample is left out");
+    }
+
+    #[test]
+    fn a_known_end_makes_version_0_from_its_samples_alone() {
+        let p = policy();
+        // A recording of 100 frames: the nine samples of the first 25 are enough.
+        let mut r = Rolling::new(p, 3, 2);
+        r.end_at(100);
+        for (n, &i) in p.warmup_samples(25).iter().enumerate() {
+            assert!(r.version(0).is_none(), "after {n} samples");
+            r.offer(i, Some(&flat(10)));
+        }
+        assert_eq!(
+            r.version(0).expect("ready").image().get_pixel(0, 0).0,
+            [10; 3]
+        );
+        // One of 12 frames: the samples spread over those 12, the others never offered.
+        let mut r = Rolling::new(p, 3, 2);
+        r.end_at(12);
+        let samples = p.warmup_samples(12);
+        for &i in &samples[1..] {
+            r.offer(i, Some(&flat(5)));
+        }
+        assert!(r.version(0).is_none(), "a sample is missing");
+        r.offer(samples[0], Some(&flat(5)));
+        assert_eq!(
+            r.version(0).expect("ready").image().get_pixel(1, 1).0,
+            [5; 3]
+        );
     }
 
     #[test]

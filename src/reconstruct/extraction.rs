@@ -83,8 +83,37 @@ pub fn extract_frames(
                     Ok((curves, image.filter(|_| policy.is_sample(i)).map(Arc::new)))
                 })?
             }
-            // The warm-up: its own samples make its background, so the block is
-            // decoded first.
+            // The warm-up of a recording read at random: its samples alone are decoded
+            // first (K frames held, not the block's W), then the block like any other.
+            None if pass.random_access() => {
+                let samples = policy.warmup_samples(wanted.len());
+                let images = pass.map_frames(
+                    &samples,
+                    || (),
+                    |_, _, r| match r {
+                        Ok(image) => Ok(Some(Arc::new(image))),
+                        // Counted when the block reads it.
+                        Err(e) if e.is_undecodable_frame() => Ok(None),
+                        Err(e) => Err(e),
+                    },
+                )?;
+                for (&i, image) in samples.iter().zip(&images) {
+                    rolling.offer(i, image.as_ref());
+                }
+                drop(images);
+                let t_bg = Instant::now();
+                let bg = rolling.version(v).ok_or(ReconstructError::Internal(
+                    "the warm-up background lacks a sample after its samples",
+                ))?;
+                background_s += t_bg.elapsed().as_secs_f64();
+                first_bg.get_or_insert_with(|| bg.clone());
+                pass.map_frames(&wanted, init, |ex, i, r| {
+                    let image = skipped.filter(i, r)?;
+                    Ok((extract_one(ex, image.as_ref(), &bg)?, None))
+                })?
+            }
+            // The warm-up of a video (one pass): its own samples make its background, so
+            // the block is decoded first and held.
             None => {
                 let images = pass.map_frames(
                     &wanted,
