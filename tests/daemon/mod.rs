@@ -96,7 +96,19 @@ fn follow(sock: PathBuf) -> std::thread::JoinHandle<Follower> {
 fn replay_streams_status_and_clients_end_with_the_final_cloud() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let dir = tmp.path();
+    // The fixture is 100 frames (3.3 s at 30 fps). The default warm-up holds the first
+    // 60 for their background, which leaves the live epochs about a second before the
+    // final solve supersedes them; the latency below is measured on live points, so the
+    // warm-up here is 25 frames.
+    let config = dir.join("crossline.toml");
+    std::fs::write(
+        &config,
+        "[background]\nwarmup_frames = 25\nsample_every = 10\n",
+    )
+    .expect("write config");
     let mut child = serve(dir, &dump(), "realtime")
+        .arg("--config")
+        .arg(&config)
         .stderr(Stdio::null())
         .spawn()
         .expect("spawn serve");
