@@ -31,6 +31,27 @@ pub struct Extracted {
     pub extract_s: f64,
 }
 
+/// Offers the warm-up's decoded `frames` (`images[k]` is frame `frames[k]`, `None`
+/// where undecodable) and makes version `v` of the background from them; the time it
+/// takes is added to `seconds`.
+fn warm_up(
+    rolling: &mut Rolling,
+    v: usize,
+    frames: &[usize],
+    images: &[Option<Arc<RgbImage>>],
+    seconds: &mut f64,
+) -> Result<Arc<Background>, ReconstructError> {
+    for (&i, image) in frames.iter().zip(images) {
+        rolling.offer(i, image.as_ref());
+    }
+    let t = Instant::now();
+    let bg = rolling.version(v).ok_or(ReconstructError::Internal(
+        "the warm-up background lacks a sample after its frames were offered",
+    ))?;
+    *seconds += t.elapsed().as_secs_f64();
+    Ok(bg)
+}
+
 /// One block's frames: their curves, and the images of the policy's samples.
 type Block = Vec<(Vec<Curve>, Option<Arc<RgbImage>>)>;
 
@@ -97,15 +118,8 @@ pub fn extract_frames(
                         Err(e) => Err(e),
                     },
                 )?;
-                for (&i, image) in samples.iter().zip(&images) {
-                    rolling.offer(i, image.as_ref());
-                }
+                let bg = warm_up(&mut rolling, v, &samples, &images, &mut background_s)?;
                 drop(images);
-                let t_bg = Instant::now();
-                let bg = rolling.version(v).ok_or(ReconstructError::Internal(
-                    "the warm-up background lacks a sample after its samples",
-                ))?;
-                background_s += t_bg.elapsed().as_secs_f64();
                 first_bg.get_or_insert_with(|| bg.clone());
                 pass.map_frames(&wanted, init, |ex, i, r| {
                     let image = skipped.filter(i, r)?;
@@ -120,17 +134,10 @@ pub fn extract_frames(
                     || (),
                     |_, i, r| Ok(skipped.filter(i, r)?.map(Arc::new)),
                 )?;
-                for (&i, image) in wanted.iter().zip(&images) {
-                    rolling.offer(i, image.as_ref());
-                }
                 if images.len() < wanted.len() {
                     rolling.end_at(wanted[0] + images.len());
                 }
-                let t_bg = Instant::now();
-                let bg = rolling.version(v).ok_or(ReconstructError::Internal(
-                    "the warm-up background lacks a sample after its block",
-                ))?;
-                background_s += t_bg.elapsed().as_secs_f64();
+                let bg = warm_up(&mut rolling, v, &wanted, &images, &mut background_s)?;
                 first_bg.get_or_insert_with(|| bg.clone());
                 images
                     .into_par_iter()
