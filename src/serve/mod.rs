@@ -434,20 +434,9 @@ pub fn run(
     let http = opts.http_listener.take();
     let listeners = Listeners::bind(&cfg, http, &header, &scan.id, started)?;
     let (hub, feed) = (listeners.hub.clone(), listeners.feed.clone());
-    let policy = Policy::new(&opts.config.background)?;
-    let samples = scan.state.join("samples");
-    let background = LiveBackground::for_scan(
-        policy,
-        &header,
-        &samples,
-        resumed.background.clone(),
-        resumed_frames,
-    );
     let shared = Shared::default();
-    let mut solver = restore_solver(&opts, resumed, source.as_mut(), &shared)?;
-    let interval = seconds(cfg.checkpoint_interval_s, 0.05, 86_400.0);
-    let writer = CheckpointWriter::open(&scan.state, header.width, header.height, interval)?;
-    let mut checkpoint = Checkpoint::new(writer);
+    let (background, mut solver, mut checkpoint) =
+        restore(&opts, &header, &scan, resumed, source.as_mut(), &shared)?;
     let workers = worker_count(cfg.workers);
     let (producer, consumer) = ring::ring(cfg.ring_slots.max(2), slot_bytes);
     let (result_tx, result_rx) = bounded::<Extracted>(2 * workers + 2);
@@ -536,14 +525,23 @@ fn worker_count(configured: usize) -> usize {
     n.min(MAX_WORKERS)
 }
 
-/// The solver of `opts`, with a resumed scan's checkpointed frames replayed into it
-/// (nobody listens yet, so nothing is sent) and `source` moved past them.
-fn restore_solver(
+/// A scan's state for its threads, from its checkpoint if it is resumed: the rolling
+/// background (its kept samples read back), the solver with the checkpointed frames
+/// replayed into it (nobody listens yet, so nothing is sent) and `source` moved past
+/// them, and the checkpoint that goes on from there.
+fn restore(
     opts: &ServeOptions,
+    header: &DumpHeader,
+    scan: &ScanFiles,
     resumed: checkpoint::Resumed,
     source: &mut dyn FrameSource,
     shared: &Shared,
-) -> Result<Incremental, ServeError> {
+) -> Result<(LiveBackground, Incremental, Checkpoint), ServeError> {
+    let frames = resumed.frames.len() as u64;
+    let policy = Policy::new(&opts.config.background)?;
+    let samples = scan.state.join("samples");
+    let saved = resumed.background.clone();
+    let background = LiveBackground::for_scan(policy, header, &samples, saved, frames);
     let params = IncrementalParams {
         min_planes_first_solve: opts.config.serve.min_planes_first_solve,
         solve_growth: opts.config.serve.solve_growth,
@@ -553,7 +551,6 @@ fn restore_solver(
     if let Some(bg) = resumed.background {
         solver.set_colour_source(Arc::new(bg));
     }
-    let frames = resumed.frames.len() as u64;
     let mut start_position = 0;
     for f in resumed.frames {
         start_position = f.source_position + 1;
@@ -567,7 +564,9 @@ fn restore_solver(
             source: std::io::Error::other(e.to_string()),
         })?;
     }
-    Ok(solver)
+    let interval = seconds(opts.config.serve.checkpoint_interval_s, 0.05, 86_400.0);
+    let writer = CheckpointWriter::open(&scan.state, header.width, header.height, interval)?;
+    Ok((background, solver, Checkpoint::new(writer)))
 }
 
 /// Extraction threads at most, whatever `[serve] workers` or `--workers` say.
