@@ -46,6 +46,7 @@ pub mod ply;
 pub mod reconstruct;
 pub mod ring;
 pub mod rng;
+pub mod sample;
 pub mod serve;
 pub mod simulate;
 pub mod solve;

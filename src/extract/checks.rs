@@ -112,32 +112,12 @@ const FRINGE_HALF_SPAN_PX: f32 = 2.0;
 /// ridge strength; a curve goes when most of its points do. A stripe crossing an edge
 /// meets it at a few points, so it stays.
 pub(crate) fn drop_edge_fringes(curves: &mut Vec<Curve>, frame: &RgbImage) -> usize {
-    let (w, h) = (frame.width() as usize, frame.height() as usize);
-    let raw = frame.as_raw();
-    // The frame's three channels at (x, y), bilinear.
-    let rgb = |x: f32, y: f32| -> Option<[f32; 3]> {
-        if !(x >= 0.0 && y >= 0.0) {
-            return None;
-        }
-        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
-        if x0 + 1 >= w || y0 + 1 >= h {
-            return None;
-        }
-        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-        let weights = [
-            (0, 0, (1.0 - fx) * (1.0 - fy)),
-            (1, 0, fx * (1.0 - fy)),
-            (0, 1, (1.0 - fx) * fy),
-            (1, 1, fx * fy),
-        ];
-        let mut v = [0.0f32; 3];
-        for (dx, dy, k) in weights {
-            let p = &raw[3 * ((y0 + dy) * w + x0 + dx)..];
-            for c in 0..3 {
-                v[c] += k * p[c] as f32;
-            }
-        }
-        Some(v)
+    let (w, h) = (frame.width() as f32, frame.height() as f32);
+    // The frame's three channels at (x, y), bilinear; none where the four pixels around
+    // it are not all in the frame.
+    let rgb = |x: f32, y: f32| {
+        let inside = x >= 0.0 && y >= 0.0 && x.floor() + 1.0 < w && y.floor() + 1.0 < h;
+        inside.then(|| crate::sample::rgb_f32(frame, x, y))
     };
     let along_edge = |c: &Curve| {
         let n = c.points_px.len();
