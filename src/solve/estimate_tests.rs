@@ -635,3 +635,47 @@ fn the_focal_scale_does_not_slide_to_where_crossings_lose_their_rays() {
         est.focal_scale
     );
 }
+
+/// A start that cannot reach the cost of an estimate made already stops early under
+/// that bar and says so; the same start with no bar, and a start near the truth under
+/// the bar, run to their ends. Without the bar, the far start runs every step and ends
+/// far above the good estimate's cost (which is what makes stopping it safe).
+#[test]
+fn a_start_that_cannot_compete_is_stopped() {
+    let scan = path_scan(&PathSpec::default());
+    let ev = evidence_of(&scan, 0.05, 3, |_, _| true);
+    let near = Start {
+        poses: perturbed(&true_poses(&scan), 0.002, 0.005, 7),
+        focal_scale: 1.0,
+        spreads: spreads(0.05),
+    };
+    let one_round = EstimateParams {
+        variance_rounds: 1,
+        ..EstimateParams::default()
+    };
+    let good = estimate(&ev, &near, &one_round).expect("the near start");
+    let far = Start {
+        poses: perturbed(&true_poses(&scan), 0.6, 0.5, 11),
+        ..near.clone()
+    };
+    let free = estimate(&ev, &far, &one_round).expect("the far start, no bar");
+    assert!(
+        free.cost > 10.0 * good.cost,
+        "the far start should lose: {} against {}",
+        free.cost,
+        good.cost
+    );
+    let barred = EstimateParams {
+        compete_below: Some(good.cost + super::choose::AMBIGUOUS_CHI2),
+        ..one_round
+    };
+    match estimate(&ev, &far, &barred) {
+        Err(super::SolveError::CannotCompete) => {}
+        other => panic!(
+            "expected CannotCompete, got cost {:?}",
+            other.map(|e| e.cost)
+        ),
+    }
+    let again = estimate(&ev, &near, &barred).expect("the near start under the bar");
+    assert!((again.cost - good.cost).abs() <= 1e-9 * good.cost.abs().max(1.0));
+}
