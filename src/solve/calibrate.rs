@@ -301,7 +301,7 @@ pub fn calibrate_until(
     let (start, planes, mut estimates) = match given {
         Some(planes) => {
             let planes = split.planes_of(&extended(evidence, planes));
-            let estimates = refine_starts(sub, &planes, (1.0, 0.1), None, &eparams)?;
+            let estimates = refine_starts(sub, &planes, 1.0, 0.1, &eparams)?;
             (super::Solution::empty(), planes, estimates)
         }
         None => two_starts(evidence, &split, params, &eparams)?,
@@ -441,7 +441,7 @@ fn two_starts(
     let mut estimates = Vec::new();
     let mut failure = linear_error;
     if failure.is_none() {
-        match refine_starts(sub, &planes, (start.focal_scale, sigma_px), None, eparams) {
+        match refine_starts(sub, &planes, start.focal_scale, sigma_px, eparams) {
             Ok(found) => estimates.extend(found),
             Err(e) => failure = Some(e),
         }
@@ -452,8 +452,7 @@ fn two_starts(
                 "the centre start: crosses {:.2}° from orthogonal",
                 rms.asin().to_degrees()
             );
-            let reference = reference_of(sub, &estimates, eparams);
-            match refine_starts(sub, &centre_planes, (1.0, sigma_px), reference, eparams) {
+            match refine_starts(sub, &centre_planes, 1.0, sigma_px, eparams) {
                 Ok(found) => estimates.extend(found),
                 Err(e) => tracing::debug!("the centre start did not refine: {e}"),
             }
@@ -505,14 +504,7 @@ fn restart_at_found_focal(
             }
         };
         made_at = found;
-        let reference = reference_of(&split.evidence, estimates, eparams);
-        match refine_starts(
-            &split.evidence,
-            &planes,
-            (found, sigma_px),
-            reference,
-            eparams,
-        ) {
+        match refine_starts(&split.evidence, &planes, found, sigma_px, eparams) {
             Ok(more) => estimates.extend(more),
             Err(e) => {
                 tracing::debug!("the start at the focal scale found did not refine: {e}");
@@ -523,36 +515,30 @@ fn restart_at_found_focal(
 }
 
 /// The global search over the shift: every minimum of the orthogonality cost of the
-/// start's crosses (`planes` at focal scale `lambda`), refined jointly. The first
-/// estimate of the scan (this start's own, with no `reference`) is made with its spreads
-/// measured; every later one under the spreads of the `reference` (the best estimate so
-/// far) or of this start's first, for one round, stopped as soon as it cannot reach the
-/// reference's cost there ([`EstimateParams::compete_below`]), and re-estimated fully
-/// only where it competes with it (its [`score`] within [`AMBIGUOUS_CHI2`]). A start
-/// that cannot compete under the spreads the evidence showed is not worth the rounds
-/// that measure its own: on a 600-frame room, a fixed-centre start 81° from orthogonal
-/// took 10 of the 21 s of the solve to lose by 3·10⁵.
+/// start's crosses (`planes` at focal scale `lambda`), refined jointly; the start's own
+/// first, with the spreads measured, the others under its spreads, and fully only where
+/// they compete with it.
 fn refine_starts(
     sub: &Evidence,
     planes: &[Option<V3>],
-    (lambda, sigma_px): (f64, f64),
-    reference: Option<Reference>,
+    lambda: f64,
+    sigma_px: f64,
     eparams: &EstimateParams,
 ) -> Result<Vec<Estimate>, SolveError> {
     let mut estimates: Vec<Estimate> = Vec::new();
-    let mut reference = reference;
+    // The first estimate's cost under its own spreads, once it exists.
+    let mut first_cost = None;
     for w in shift_candidates(sub, planes) {
         let shifted: Vec<Option<V3>> = planes.iter().map(|p| p.map(|v| v + w)).collect();
         let Some((poses, _)) = init::poses_from_planes(sub, &shifted) else {
             continue;
         };
-        let (spreads, params_here) = match reference {
+        let (spreads, params_here) = match estimates.first() {
             None => (init::start_spreads(sub, &poses, sigma_px), eparams.clone()),
-            Some(r) => (
-                r.spreads,
+            Some(first) => (
+                first.spreads,
                 EstimateParams {
                     variance_rounds: 1,
-                    compete_below: Some(r.cost + AMBIGUOUS_CHI2),
                     ..eparams.clone()
                 },
             ),
@@ -565,69 +551,34 @@ fn refine_starts(
         match estimate::estimate(sub, &start, &params_here) {
             Ok(mut est) => {
                 normalise_scale(sub, &mut est);
-                match reference {
-                    Some(r) => {
-                        let delta = score(sub, &est, eparams) - r.score;
-                        tracing::debug!(lambda, found = est.focal_scale, delta, "a further start");
-                        if delta < AMBIGUOUS_CHI2 {
-                            // It competes: measure its own spreads too.
-                            let again = Start {
-                                poses: est.poses.clone(),
-                                focal_scale: est.focal_scale,
-                                spreads: est.spreads,
-                            };
-                            if let Ok(mut full) = estimate::estimate(sub, &again, eparams) {
-                                normalise_scale(sub, &mut full);
-                                est = full;
-                            }
+                if let (Some(_), Some(base)) = (estimates.first(), first_cost) {
+                    let delta = score(sub, &est, eparams) - base;
+                    tracing::debug!(lambda, found = est.focal_scale, delta, "a further start");
+                    if delta < AMBIGUOUS_CHI2 {
+                        // It competes: measure its own spreads too.
+                        let again = Start {
+                            poses: est.poses.clone(),
+                            focal_scale: est.focal_scale,
+                            spreads: est.spreads,
+                        };
+                        if let Ok(mut full) = estimate::estimate(sub, &again, eparams) {
+                            normalise_scale(sub, &mut full);
+                            est = full;
                         }
                     }
-                    None => {
-                        let cost = score(sub, &est, eparams);
-                        tracing::debug!(lambda, found = est.focal_scale, cost, "the first start");
-                        reference = Some(Reference::of(&est, cost));
-                    }
+                }
+                if first_cost.is_none() {
+                    let cost = score(sub, &est, eparams);
+                    tracing::debug!(lambda, found = est.focal_scale, cost, "the first start");
+                    first_cost = Some(cost);
                 }
                 estimates.push(est);
             }
-            Err(SolveError::CannotCompete) => {}
-            Err(e) if estimates.is_empty() && reference.is_none() => return Err(e),
+            Err(e) if estimates.is_empty() => return Err(e),
             Err(e) => tracing::debug!("an alternative start did not refine: {e}"),
         }
     }
     Ok(estimates)
-}
-
-/// What later starts are refined against (see [`refine_starts`]).
-#[derive(Clone, Copy)]
-struct Reference {
-    spreads: Spreads,
-    /// Its cost at its spreads.
-    cost: f64,
-    score: f64,
-}
-
-impl Reference {
-    fn of(est: &Estimate, score: f64) -> Self {
-        Self {
-            spreads: est.spreads,
-            cost: est.cost,
-            score,
-        }
-    }
-}
-
-/// The best of `estimates` so far, as [`refine_starts`]' reference.
-fn reference_of(
-    sub: &Evidence,
-    estimates: &[Estimate],
-    eparams: &EstimateParams,
-) -> Option<Reference> {
-    let k = least_cost(sub, estimates, eparams)?;
-    Some(Reference::of(
-        &estimates[k],
-        score(sub, &estimates[k], eparams),
-    ))
 }
 
 /// The shifts `w` to refine: every minimum of the orthogonality cost of the crosses whose

@@ -68,11 +68,6 @@ pub struct EstimateParams {
     pub cancel: super::Cancel,
     /// Threads of the dense factorisations ([`super::dense`]).
     pub threads: DenseThreads,
-    /// The cost (at the start's spreads) an estimate must be able to reach to compete
-    /// with one already made: a minimisation that cannot reach it within its steps
-    /// stops ([`SolveError::CannotCompete`]; see [`minimise`]). It holds in the first
-    /// round only, the one at the start's spreads. `None`: no bar.
-    pub compete_below: Option<f64>,
 }
 
 impl Default for EstimateParams {
@@ -88,7 +83,6 @@ impl Default for EstimateParams {
             motion_loss: 2.0,
             cancel: super::Cancel::default(),
             threads: DenseThreads::default(),
-            compete_below: None,
         }
     }
 }
@@ -571,27 +565,15 @@ fn damped_step(h: &Mat<f64>, g: &[f64], mu: f64, threads: DenseThreads) -> Optio
 }
 
 /// Levenberg–Marquardt from `state` at fixed spreads; returns the state, its cost and
-/// the steps taken, or `None` when the cost cannot reach the params' `compete_below`:
-/// when the steps left, each decreasing the cost as much as the largest of the last
-/// [`PACE_STEPS`], would still leave it above the bar. (A start of a standing hand
-/// 81° from orthogonal, refined under a good estimate's spreads, fell by 25,000 in its
-/// first step and by under 3,000 a step after, 5·10⁶ above the bar: it spent 30 steps
-/// of a 600-frame room's anchors, 2.4 s, to lose.)
-fn minimise(
-    layout: &Layout,
-    mut state: State,
-    spreads: &Spreads,
-    bar: Option<f64>,
-) -> Option<(State, f64, usize)> {
+/// the steps taken.
+fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64, usize) {
     let focal = layout.focal_index();
     let target = layout.gauge(&state, &layout.rays(state.focal_scale)).0;
     let mut mu = 1e-4;
     let mut steps = 0;
     let (mut current, rays_now) = layout.cost_and_rays(&state, spreads);
     let mut last_decrease = f64::INFINITY;
-    let mut pace = [0.0f64; PACE_STEPS];
-    let max_steps = layout.params.max_iterations;
-    for _ in 0..max_steps {
+    for _ in 0..layout.params.max_iterations {
         if layout.params.cancel.is_cancelled() {
             break;
         }
@@ -628,24 +610,13 @@ fn minimise(
         last_decrease = decrease;
         state = trial;
         current = c;
-        pace[steps % PACE_STEPS] = decrease;
         steps += 1;
-        if let Some(bar) = bar {
-            let fastest = pace.iter().fold(0.0f64, |m, d| m.max(*d));
-            if current - (max_steps - steps) as f64 * fastest > bar {
-                tracing::debug!(steps, cost = current, bar, "cannot compete: stopped");
-                return None;
-            }
-        }
         if settled {
             break;
         }
     }
-    Some((state, current, steps))
+    (state, current, steps)
 }
-
-/// The steps whose largest decrease paces [`minimise`]'s bound on what is left.
-const PACE_STEPS: usize = 3;
 
 /// The full covariance at `state`: the inverse of the information matrix with the gauge
 /// and ridge. `None` if it does not factor.
@@ -814,11 +785,8 @@ pub fn estimate(
     let mut redundancy;
     let mut round = 0;
     loop {
-        // The bar is a cost at the start's spreads: the first round's.
-        let bar = params.compete_below.filter(|_| round == 0);
-        let found = minimise(&layout, state, &spreads, bar);
+        let (s, c, steps) = minimise(&layout, state, &spreads);
         params.cancel.check()?;
-        let (s, c, steps) = found.ok_or(SolveError::CannotCompete)?;
         state = s;
         cost = c;
         iterations += steps;

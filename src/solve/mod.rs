@@ -108,10 +108,6 @@ pub enum SolveError {
     /// final solve.
     #[error("cancelled")]
     Cancelled,
-    /// A start refined under another estimate's spreads could not reach its cost
-    /// ([`estimate::EstimateParams::compete_below`]).
-    #[error("the start cannot compete with the estimate made already")]
-    CannotCompete,
 }
 
 /// A request to stop a solve early, shared between the solve and its caller. The solve
