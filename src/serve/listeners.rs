@@ -139,8 +139,22 @@ pub(super) fn spawn_named<'scope, 'env, T: Send + 'scope>(
     name: &str,
     f: impl FnOnce() -> T + Send + 'scope,
 ) -> Result<ScopedJoinHandle<'scope, T>, ServeError> {
-    std::thread::Builder::new()
-        .name(name.into())
+    spawn_sized(s, name, None, f)
+}
+
+/// [`spawn_named`] with a stack of `stack_bytes` (the default when `None`).
+pub(super) fn spawn_sized<'scope, 'env, T: Send + 'scope>(
+    s: &'scope Scope<'scope, 'env>,
+    name: &str,
+    stack_bytes: Option<usize>,
+    f: impl FnOnce() -> T + Send + 'scope,
+) -> Result<ScopedJoinHandle<'scope, T>, ServeError> {
+    let builder = std::thread::Builder::new().name(name.into());
+    let builder = match stack_bytes {
+        Some(bytes) => builder.stack_size(bytes),
+        None => builder,
+    };
+    builder
         .spawn_scoped(s, f)
         .map_err(|source| ServeError::Thread {
             name: name.into(),

@@ -12,7 +12,7 @@ use crossbeam_channel::Sender;
 use image::RgbImage;
 
 use super::background::{self, LiveBackground};
-use super::listeners::spawn_named;
+use super::listeners::{spawn_named, spawn_sized};
 use super::scan::ScanFiles;
 use super::status::{DeviceState, Status};
 use super::{
@@ -301,14 +301,10 @@ pub(super) fn spawn_workers<'scope, 'env>(
 ) -> Result<(), ServeError> {
     for w in 0..n {
         let (consumer, results) = (consumer.clone(), results.clone());
-        std::thread::Builder::new()
-            .name(format!("extract-{w}"))
-            .stack_size(WORKER_STACK_BYTES)
-            .spawn_scoped(s, move || worker_loop(consumer, results, ctx))
-            .map_err(|source| ServeError::Thread {
-                name: format!("extract-{w}"),
-                source,
-            })?;
+        let name = format!("extract-{w}");
+        spawn_sized(s, &name, Some(WORKER_STACK_BYTES), move || {
+            worker_loop(consumer, results, ctx)
+        })?;
     }
     Ok(())
 }
