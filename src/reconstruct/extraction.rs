@@ -4,7 +4,7 @@
 
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Instant;
 
 use image::RgbImage;
@@ -52,34 +52,6 @@ fn warm_up(
     Ok(bg)
 }
 
-/// An extractor lent from a pool for one rayon split of a block, given back when
-/// dropped. Rayon calls `map_init`'s init once per split, a few times per block, and a
-/// new extractor zeroes its full-frame scratch buffers: on a 600-frame room that was
-/// 4.5 % of the CPU time of the whole reconstruction (perf, `alloc_zeroed` under
-/// `Detector::new`). The pool keeps one per thread for the whole recording.
-struct Lent<'a> {
-    extractor: Option<Extractor>,
-    pool: &'a Mutex<Vec<Extractor>>,
-}
-
-impl<'a> Lent<'a> {
-    fn from(pool: &'a Mutex<Vec<Extractor>>, camera: &Camera, config: &Config) -> Self {
-        let spare = pool.lock().unwrap_or_else(|e| e.into_inner()).pop();
-        Self {
-            extractor: spare.or_else(|| Extractor::new(&config.extract, camera).ok()),
-            pool,
-        }
-    }
-}
-
-impl Drop for Lent<'_> {
-    fn drop(&mut self) {
-        if let Some(ex) = self.extractor.take() {
-            self.pool.lock().unwrap_or_else(|e| e.into_inner()).push(ex);
-        }
-    }
-}
-
 /// One block's frames: their curves, and the images of the policy's samples.
 type Block = Vec<(Vec<Curve>, Option<Arc<RgbImage>>)>;
 
@@ -108,20 +80,18 @@ pub fn extract_frames(
     let mut pass = frames.pass(camera)?;
     let (mut per_frame, mut first_bg, mut background_s) = (Vec::with_capacity(n), None, 0.0);
     let mut v = 0;
-    let extractors = Mutex::new(Vec::new());
     while per_frame.len() < n {
         let wanted: Vec<usize> = (policy.start_of(v)..policy.end_of(v).min(n)).collect();
         let extract_one =
-            |lent: &mut Lent, image: Option<&RgbImage>, bg: &Background| {
-                let ex = lent
-                    .extractor
+            |ex: &mut Option<Extractor>, image: Option<&RgbImage>, bg: &Background| {
+                let ex = ex
                     .as_mut()
                     .ok_or(ReconstructError::Internal("extractor construction failed"))?;
                 let curves = image.map_or_else(Vec::new, |img| ex.extract(img, bg));
                 progress.update("extract", done.fetch_add(1, Ordering::Relaxed) + 1, n);
                 Ok::<_, ReconstructError>(curves)
             };
-        let init = || Lent::from(&extractors, camera, config);
+        let init = || Extractor::new(&config.extract, camera).ok();
         let t_bg = Instant::now();
         let ready = fixed.clone().or_else(|| rolling.version(v));
         background_s += t_bg.elapsed().as_secs_f64();
