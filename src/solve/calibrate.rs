@@ -414,8 +414,9 @@ type Starts = (super::Solution, Vec<Option<V3>>, Vec<Estimate>);
 /// (stripes on one flat table, the other laser missing) drifts along the chain, which the
 /// joint estimate then keeps (a table top: 0.7 % of the points 4-10 % off, the cost 36 %
 /// above the truth's); the centre start knows nothing of a hand that walks. The
-/// estimator's [`score`] chooses among all. Also returns the linear start (empty when it
-/// failed) and its planes.
+/// estimator's [`score`] chooses among all. The centre start is refined on all the
+/// anchors unless it loses on every other one ([`super::screen`]). Also returns the
+/// linear start (empty when it failed) and its planes.
 fn two_starts(
     evidence: &Evidence,
     split: &AnchorSplit,
@@ -452,9 +453,13 @@ fn two_starts(
                 "the centre start: crosses {:.2}° from orthogonal",
                 rms.asin().to_degrees()
             );
-            match refine_starts(sub, &centre_planes, 1.0, sigma_px, eparams) {
-                Ok(found) => estimates.extend(found),
-                Err(e) => tracing::debug!("the centre start did not refine: {e}"),
+            if super::screen::loses_on_half(sub, &centre_planes, sigma_px, eparams, &estimates) {
+                tracing::debug!("the centre start loses on every other anchor: left out");
+            } else {
+                match refine_starts(sub, &centre_planes, 1.0, sigma_px, eparams) {
+                    Ok(found) => estimates.extend(found),
+                    Err(e) => tracing::debug!("the centre start did not refine: {e}"),
+                }
             }
         }
         None => tracing::debug!("no centre start"),
@@ -518,7 +523,7 @@ fn restart_at_found_focal(
 /// start's crosses (`planes` at focal scale `lambda`), refined jointly; the start's own
 /// first, with the spreads measured, the others under its spreads, and fully only where
 /// they compete with it.
-fn refine_starts(
+pub(super) fn refine_starts(
     sub: &Evidence,
     planes: &[Option<V3>],
     lambda: f64,

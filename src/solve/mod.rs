@@ -51,6 +51,7 @@ pub mod init;
 pub mod nullspace;
 pub mod ortho;
 pub mod pose;
+mod screen;
 pub mod seed;
 pub mod subset;
 pub mod synthetic;
