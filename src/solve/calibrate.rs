@@ -624,20 +624,9 @@ fn shift_candidates(evidence: &Evidence, planes: &[Option<V3>]) -> Vec<V3> {
 /// Rescales the centres (and their covariance, and the centre spread) so that the median
 /// inverse depth at the crossings is 1.
 pub(super) fn normalise_scale(evidence: &Evidence, est: &mut Estimate) {
-    let lambda = est.focal_scale;
-    let inverse_depths: Vec<f64> = evidence
-        .crossings
-        .iter()
-        .zip(&est.crossing_weights)
-        .filter(|(_, w)| **w >= 0.5)
-        .filter_map(|(c, _)| {
-            let slot = evidence.planes[c.a as usize];
-            let v = est.poses[slot.pose as usize].plane(usize::from(slot.laser))?;
-            let ray = evidence.rays.ray(c.u, lambda)?;
-            Some(v.dot(&ray.r))
-        })
-        .collect();
-    let Some(m) = super::median(inverse_depths).filter(|m| m.is_finite() && *m != 0.0) else {
+    let Some(m) = median_inverse_depth(evidence, &est.poses, est.focal_scale, |k| {
+        est.crossing_weights.get(k).is_some_and(|w| *w >= 0.5)
+    }) else {
         return;
     };
     for p in &mut est.poses {
@@ -657,6 +646,30 @@ pub(super) fn normalise_scale(evidence: &Evidence, est: &mut Estimate) {
         }
     }
     est.spreads.centre *= m.abs();
+}
+
+/// The median inverse depth of `poses` (at focal scale `lambda`) at the crossings `k`
+/// that `counts(k)` keeps, on the first plane of each; `None` if there is none, or it
+/// is not finite or zero. [`normalise_scale`] divides the estimate's scale by it.
+pub(super) fn median_inverse_depth(
+    evidence: &Evidence,
+    poses: &[super::pose::CrossPose],
+    lambda: f64,
+    counts: impl Fn(usize) -> bool,
+) -> Option<f64> {
+    let inverse_depths: Vec<f64> = evidence
+        .crossings
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| counts(*k))
+        .filter_map(|(_, c)| {
+            let slot = evidence.planes[c.a as usize];
+            let v = poses[slot.pose as usize].plane(usize::from(slot.laser))?;
+            let ray = evidence.rays.ray(c.u, lambda)?;
+            Some(v.dot(&ray.r))
+        })
+        .collect();
+    super::median(inverse_depths).filter(|m| m.is_finite() && *m != 0.0)
 }
 
 /// Per plane, what its own crossings say of the estimate (see the module docs).

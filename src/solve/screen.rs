@@ -20,11 +20,12 @@
 
 use nalgebra::Vector3;
 
-use super::calibrate::{normalise_scale, refine_starts};
+use super::calibrate::{median_inverse_depth, normalise_scale, refine_starts};
 use super::choose::{least_cost, score, AMBIGUOUS_CHI2};
 use super::conditional::AnchorSplit;
 use super::estimate::{estimate, Estimate, EstimateParams, Start};
 use super::evidence::Evidence;
+use super::pose::CrossPose;
 
 type V3 = Vector3<f64>;
 
@@ -69,7 +70,7 @@ pub(super) fn loses_on_half(
     };
     let best = &estimates[k];
     let refit = Start {
-        poses: restricted(best, coarse, &half).poses,
+        poses: restricted(best, coarse, &half),
         focal_scale: best.focal_scale,
         spreads: best.spreads,
     };
@@ -91,22 +92,20 @@ pub(super) fn loses_on_half(
     delta >= AMBIGUOUS_CHI2
 }
 
-/// `est` (of all the anchors) on the anchors of `half` alone, its scale normalised on
-/// their crossings as the start's estimates are (the start of its refit there).
-fn restricted(est: &Estimate, coarse: &Evidence, half: &AnchorSplit) -> Estimate {
-    let keep = |p: &usize| half.anchor_of_pose[*p].is_some();
-    let mut out = est.clone();
-    out.poses = (0..est.poses.len())
-        .filter(keep)
+/// The poses of `est` (of all the anchors) on the anchors of `half` alone, their scale
+/// normalised on `coarse`'s crossings as the start's estimates are (the start of its
+/// refit there; every crossing counts, as `est`'s weights are of other crossings).
+fn restricted(est: &Estimate, coarse: &Evidence, half: &AnchorSplit) -> Vec<CrossPose> {
+    let mut poses: Vec<CrossPose> = (0..est.poses.len())
+        .filter(|p| half.anchor_of_pose[*p].is_some())
         .map(|p| est.poses[p])
         .collect();
-    out.marginals = (0..est.marginals.len())
-        .filter(keep)
-        .map(|p| est.marginals[p])
-        .collect();
-    out.crossing_weights = vec![1.0; coarse.crossings.len()];
-    normalise_scale(coarse, &mut out);
-    out
+    if let Some(m) = median_inverse_depth(coarse, &poses, est.focal_scale, |_| true) {
+        for p in &mut poses {
+            p.centre *= m;
+        }
+    }
+    poses
 }
 
 #[cfg(test)]
