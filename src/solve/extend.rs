@@ -13,7 +13,7 @@
 
 use super::nullspace::sampson;
 use crate::intersect::Crossing;
-use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use nalgebra::{Matrix3, Vector3};
 
 /// What a plane fit needs to know besides the crossings.
 #[derive(Clone, Copy, Debug)]
@@ -151,9 +151,8 @@ pub fn fit_plane(
         if rows < 3 || rows.saturating_sub(usize::from(partner.is_some())) < 2 {
             return None;
         }
-        let eig = SymmetricEigen::new(a);
-        let (lo, hi) = eig
-            .eigenvalues
+        let (lo, hi) = a
+            .symmetric_eigenvalues()
             .iter()
             .fold((f64::INFINITY, 0.0f64), |(lo, hi), &l| {
                 (lo.min(l), hi.max(l))
@@ -223,9 +222,12 @@ fn sample_plane(rows: [(Vector3<f64>, f64); 3], min_sv: f64) -> Option<Vector3<f
         unit[1].0.transpose(),
         unit[2].0.transpose(),
     ]);
-    let sv = a.singular_values();
-    if sv.min().is_nan() || sv.min() < min_sv {
-        return None;
+    // Without a spread to demand, a singular sample fails in the solve below.
+    if min_sv > 0.0 {
+        let sv = a.singular_values();
+        if sv.min().is_nan() || sv.min() < min_sv {
+            return None;
+        }
     }
     let v = a
         .lu()
@@ -323,15 +325,26 @@ fn consensus_start(
                 .filter_map(|t| sample_plane([row(t[0]), row(t[1]), ortho], min_sv)),
         );
     }
+    // Every candidate meets every known crossing: the squared Sampson residual
+    // `((v − v_j)·u)² / |(v − v_j)_xy|²` spares a square root per pair.
+    let thr2 = thr * thr;
     let mut best: Option<(usize, f64, Vector3<f64>)> = None;
     for v in candidates {
         let (mut count, mut cost) = (0usize, 0.0);
         for (k, vj) in known {
-            let e = sampson(&v, vj, crossings[*k].u).map_or(f64::INFINITY, |(e, _)| e.abs());
-            if e <= thr {
+            let d = v - vj;
+            let g2 = d.x * d.x + d.y * d.y;
+            let u = crossings[*k].u;
+            let r = d.x * u[0] + d.y * u[1] + d.z;
+            let e2 = if g2 > 0.0 && g2.is_finite() {
+                r * r / g2
+            } else {
+                f64::INFINITY
+            };
+            if e2 <= thr2 {
                 count += 1;
             }
-            cost += e.min(thr).powi(2);
+            cost += e2.min(thr2);
         }
         // The partner's orthogonality votes too: crossings all but one on a line fit
         // a wrong plane through that one as well as the right one.

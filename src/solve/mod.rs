@@ -883,8 +883,15 @@ pub fn solve(problem: &Problem, params: &SolveParams) -> Result<Solution, SolveE
         .collect();
     let shallow_crossings = active.iter().filter(|&&a| !a).count();
 
+    let started = std::time::Instant::now();
     let global = robust_global(problem, &active, params)?;
     let subset = &global.subset;
+    tracing::debug!(
+        planes = subset.curves.len(),
+        inlier_crossings = subset.crossings.len(),
+        ms = started.elapsed().as_secs_f64() * 1e3,
+        "global coplanarity solved"
+    );
     let crosses = crosses_among(&subset.curves, &subset.local, problem.partner);
     let (orth, _bad_crosses) = ortho::solve_orthogonality(
         &global.null_space.v0,

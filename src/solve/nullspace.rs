@@ -20,7 +20,7 @@
 
 use super::SolveError;
 use crate::intersect::Crossing;
-use nalgebra::{DMatrix, Matrix3, Vector3};
+use nalgebra::{DMatrix, Vector3};
 
 /// Solution of the coplanarity system over a subset.
 #[derive(Clone, Debug)]
@@ -46,8 +46,7 @@ pub fn normal_matrix(
     crossing_ids: &[usize],
     weights: &[f64],
 ) -> DMatrix<f64> {
-    let mut blocks = vec![Matrix3::zeros(); n];
-    let mut off: std::collections::HashMap<(usize, usize), Matrix3<f64>> = Default::default();
+    let mut nm = DMatrix::zeros(3 * n, 3 * n);
     for (&k, &w) in crossing_ids.iter().zip(weights) {
         let c = &crossings[k];
         let (Some(i), Some(j)) = (local[c.a as usize], local[c.b as usize]) else {
@@ -55,19 +54,10 @@ pub fn normal_matrix(
         };
         let u = homog(c.u);
         let m = u * u.transpose() * w;
-        blocks[i] += m;
-        blocks[j] += m;
-        *off.entry((i.min(j), i.max(j)))
-            .or_insert_with(Matrix3::zeros) -= m;
-    }
-    let mut nm = DMatrix::zeros(3 * n, 3 * n);
-    for (i, b) in blocks.iter().enumerate() {
-        nm.fixed_view_mut::<3, 3>(3 * i, 3 * i).copy_from(b);
-    }
-    for ((i, j), b) in off {
-        nm.fixed_view_mut::<3, 3>(3 * i, 3 * j).copy_from(&b);
-        nm.fixed_view_mut::<3, 3>(3 * j, 3 * i)
-            .copy_from(&b.transpose());
+        for (r, s, sign) in [(i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)] {
+            let mut block = nm.fixed_view_mut::<3, 3>(3 * r, 3 * s);
+            block += m * sign;
+        }
     }
     nm
 }

@@ -73,7 +73,7 @@ pub fn consensus_weights(
         if seed.curves.len() < 6 {
             continue;
         }
-        if let Some(g) = solve_and_grow(problem, active, subset, &seed, params) {
+        if let Some(g) = solve_and_grow(problem, &adj, subset, &seed, params) {
             grown.push(g);
         }
     }
@@ -107,10 +107,11 @@ pub fn consensus_weights(
     Some((weights, sigma_ref))
 }
 
-/// Solves a seed by reweighted least squares and grows it over `subset`.
+/// Solves a seed by reweighted least squares and grows it over `subset` (`adj`: the
+/// adjacency of the active crossings, [`adjacency`]).
 fn solve_and_grow(
     problem: &Problem,
-    active: &[bool],
+    adj: &[Vec<(u32, usize)>],
     subset: &Subset,
     seed: &Subset,
     params: &SolveParams,
@@ -168,27 +169,37 @@ fn solve_and_grow(
         max_depth_sigma: f64::INFINITY,
         min_sin_angle: params.min_sin_angle,
     };
-    let adj = adjacency(problem.num_curves, cr, active);
     let mut failed = vec![false; problem.num_curves];
+    // Crossings of each curve with the planes solved so far, kept as planes are added
+    // (each crossing is listed under both of its curves).
+    let mut known_count = vec![0usize; problem.num_curves];
+    for &c in &seed.curves {
+        for &(o, _) in &adj[c as usize] {
+            known_count[o as usize] += 1;
+        }
+    }
     loop {
-        let known_of = |c: u32, planes: &[Option<Vector3<f64>>]| -> Vec<(usize, Vector3<f64>)> {
-            adj[c as usize]
-                .iter()
-                .filter_map(|&(o, k)| planes[o as usize].map(|v| (k, v)))
-                .collect()
-        };
         let next = subset
             .curves
             .iter()
             .copied()
             .filter(|&c| planes[c as usize].is_none() && !failed[c as usize])
-            .map(|c| (known_of(c, &planes).len(), c))
+            .map(|c| (known_count[c as usize], c))
             .filter(|&(m, _)| m >= 4)
             .max();
         let Some((_, c)) = next else { break };
+        let known: Vec<(usize, Vector3<f64>)> = adj[c as usize]
+            .iter()
+            .filter_map(|&(o, k)| planes[o as usize].map(|v| (k, v)))
+            .collect();
         // The partner is not used: orthogonality holds only once the gauge is fixed.
-        match fit_plane(cr, &known_of(c, &planes), None, &ctx, None) {
-            Some(fit) => planes[c as usize] = Some(fit.plane),
+        match fit_plane(cr, &known, None, &ctx, None) {
+            Some(fit) => {
+                planes[c as usize] = Some(fit.plane);
+                for &(o, _) in &adj[c as usize] {
+                    known_count[o as usize] += 1;
+                }
+            }
             None => failed[c as usize] = true,
         }
     }
