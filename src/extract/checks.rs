@@ -6,6 +6,8 @@
 //!
 //! Owns the counters across frames and the one-time warnings; changes no point.
 
+use std::sync::{Arc, Mutex};
+
 use image::RgbImage;
 
 use super::{ColourLut, Curve, LaserColour};
@@ -152,9 +154,15 @@ pub(crate) fn drop_edge_fringes(curves: &mut Vec<Curve>, frame: &RgbImage) -> us
     before - curves.iter().map(|c| c.points_px.len()).sum::<usize>()
 }
 
-/// Counters across frames for the one-time warnings.
+/// Counters across frames for the one-time warnings. Clones share them: every
+/// extractor of one run (the workers of `reconstruct`, of the daemon) counts into one,
+/// so that each warning is given once per run, and a laser missing from all the
+/// frames is noticed however the frames are split among the extractors.
 #[derive(Clone, Debug, Default)]
-pub(crate) struct Presence {
+pub struct Presence(Arc<Mutex<Counts>>);
+
+#[derive(Debug, Default)]
+struct Counts {
     frames: usize,
     frames_with: [usize; 2],
     told_absent: bool,
@@ -165,7 +173,22 @@ impl Presence {
     /// Counts a frame's `curves`; says once when one of two lasers is absent from the
     /// frames while the other is in most of them, and once when a frame's share of
     /// clipped points exceeds [`CLIPPED_WARN_SHARE`].
-    pub fn observe(&mut self, lasers: &[LaserColour], curves: &[Curve], clipped: usize) {
+    pub(crate) fn observe(&self, lasers: &[LaserColour], curves: &[Curve], clipped: usize) {
+        // A poisoned lock means another extractor panicked: a bug reported there.
+        let Ok(mut counts) = self.0.lock() else {
+            return;
+        };
+        counts.observe(lasers, curves, clipped);
+    }
+
+    /// Whether the absence of one laser has been told.
+    pub fn absent_told(&self) -> bool {
+        self.0.lock().is_ok_and(|c| c.told_absent)
+    }
+}
+
+impl Counts {
+    fn observe(&mut self, lasers: &[LaserColour], curves: &[Curve], clipped: usize) {
         self.frames += 1;
         let points: usize = curves.iter().map(|c| c.points_px.len()).sum();
         for k in 0..lasers.len().min(2) {
@@ -196,10 +219,5 @@ impl Presence {
                 }
             }
         }
-    }
-
-    /// Whether the absence of one laser has been told.
-    pub fn absent_told(&self) -> bool {
-        self.told_absent
     }
 }

@@ -120,6 +120,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
 pub use background::Background;
+pub use checks::Presence;
 pub use colour::{ColourLut, ColourParams, LaserColour};
 use detect::Detector;
 use link::Linker;
@@ -667,9 +668,23 @@ impl Extractor {
         Ok(curves)
     }
 
-    /// Whether the extractor has told that one of its two lasers is not in the frames.
+    /// Whether the extractor (or one sharing its warnings) has told that one of its
+    /// two lasers is not in the frames.
     pub fn one_laser_absent(&self) -> bool {
         self.presence.absent_told()
+    }
+
+    /// The counters of the one-time warnings (saturated stripes, a laser missing):
+    /// give them to the other extractors of the same run
+    /// ([`Extractor::sharing_warnings`]) and each warning comes once per run.
+    pub fn warnings(&self) -> Presence {
+        self.presence.clone()
+    }
+
+    /// This extractor, counting into `presence` (from [`Extractor::warnings`]).
+    pub fn sharing_warnings(mut self, presence: Presence) -> Self {
+        self.presence = presence;
+        self
     }
 
     /// Marks in `self.grown` the inactive tiles of laser `laser` that lie ahead of an

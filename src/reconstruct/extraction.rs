@@ -75,7 +75,8 @@ pub fn extract_frames(
     rolling.end_at(frames.len());
     // Validate the parameters once; every worker thread then builds its own extractor
     // (they own their scratch buffers), which cannot fail any more.
-    Extractor::new(&config.extract, camera)?;
+    // (They count into one set of one-time warnings: each is given once per run.)
+    let warnings = Extractor::new(&config.extract, camera)?.warnings();
     let (n, done, skipped) = (frames.len(), AtomicUsize::new(0), Skipped::default());
     let mut pass = frames.pass(camera)?;
     let (mut per_frame, mut first_bg, mut background_s) = (Vec::with_capacity(n), None, 0.0);
@@ -91,7 +92,11 @@ pub fn extract_frames(
                 progress.update("extract", done.fetch_add(1, Ordering::Relaxed) + 1, n);
                 Ok::<_, ReconstructError>(curves)
             };
-        let init = || Extractor::new(&config.extract, camera).ok();
+        let init = || {
+            Extractor::new(&config.extract, camera)
+                .ok()
+                .map(|ex| ex.sharing_warnings(warnings.clone()))
+        };
         let t_bg = Instant::now();
         let ready = fixed.clone().or_else(|| rolling.version(v));
         background_s += t_bg.elapsed().as_secs_f64();

@@ -22,7 +22,7 @@ use super::{
 use crate::camera::Camera;
 use crate::capture::dump::{decode_rgb, DumpHeader};
 use crate::capture::{CaptureError, FrameSource, Next};
-use crate::extract::{Background, Curve, ExtractParams, Extractor};
+use crate::extract::{Background, Curve, ExtractParams, Extractor, Presence};
 use crate::ring::{self, FrameMeta, Recv, Slot};
 
 /// The flags the threads of one run are stopped and watched by.
@@ -35,6 +35,8 @@ pub(super) struct Flags {
     pub capture_done: AtomicBool,
     /// Why capture stopped, if a source failed.
     pub capture_error: Mutex<Option<String>>,
+    /// The one-time warnings of extraction, which every worker counts into.
+    pub warnings: Presence,
 }
 
 /// What the capture, worker and status threads of one run read, all owned by
@@ -108,6 +110,7 @@ impl<'env> Pipeline<'env> {
             shared: self.shared,
             background: self.background,
             stop: &self.flags.workers_stop,
+            warnings: &self.flags.warnings,
         };
         spawn_workers(s, workers, &consumer, &results, ctx)?;
         let status = StatusThread {
@@ -288,6 +291,8 @@ pub(super) struct WorkerContext<'a> {
     pub background: &'a LiveBackground,
     /// Set when the solver has ended: parked frames are given up.
     pub stop: &'a AtomicBool,
+    /// The one-time warnings every worker counts into.
+    pub warnings: &'a Presence,
 }
 
 /// Spawns the extraction workers `extract-0..n` in `s`, each with its own end of the
@@ -317,10 +322,12 @@ fn worker_loop(consumer: ring::Consumer, results: Sender<Extracted>, ctx: Worker
         shared,
         background,
         stop,
+        warnings,
     } = ctx;
-    let Ok(mut extractor) = Extractor::new(params, camera) else {
+    let Ok(extractor) = Extractor::new(params, camera) else {
         return;
     };
+    let mut extractor = extractor.sharing_warnings(warnings.clone());
     let send =
         |meta: FrameMeta, curves: Vec<Curve>| results.send(Extracted { meta, curves }).is_ok();
     let extract = |extractor: &mut Extractor, (meta, image, bg): background::Ready| {
