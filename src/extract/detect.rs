@@ -150,11 +150,11 @@ impl BandMoments {
         self.syy += j * j;
     }
 
-    /// Width across of the band: `√12` times the square root of the smaller eigenvalue
-    /// of the covariance of its positions (a band `w` wide has `w² / 12`).
-    fn width(&self) -> f64 {
+    /// The smaller and the larger eigenvalue of the covariance of the band's positions
+    /// (at least 3 of them).
+    fn spreads(&self) -> Option<(f64, f64)> {
         if self.n < 3 {
-            return self.n as f64;
+            return None;
         }
         let nf = self.n as f64;
         let (mx, my) = (self.sx as f64 / nf, self.sy as f64 / nf);
@@ -163,9 +163,47 @@ impl BandMoments {
         let cyy = self.syy as f64 / nf - my * my;
         let half_trace = 0.5 * (cxx + cyy);
         let disc = (0.25 * (cxx - cyy) * (cxx - cyy) + cxy * cxy).sqrt();
-        (12.0 * (half_trace - disc).max(0.0)).sqrt()
+        Some(((half_trace - disc).max(0.0), half_trace + disc))
+    }
+
+    /// Width across of the band: `√12` times the square root of the smaller eigenvalue
+    /// of the covariance of its positions (a band `w` wide has `w² / 12`).
+    fn width(&self) -> f64 {
+        self.spreads()
+            .map_or(self.n as f64, |(across, _)| (12.0 * across).sqrt())
+    }
+
+    /// The smaller over the larger of those eigenvalues: `(w / L)²` for a band `w` wide
+    /// and `L` long, 1/4 for two equal arms at a right angle, about 1 for a patch or a
+    /// pattern spread over the window.
+    fn roundness(&self) -> f64 {
+        self.spreads().map_or(
+            0.0,
+            |(across, along)| {
+                if along > 0.0 {
+                    across / along
+                } else {
+                    0.0
+                }
+            },
+        )
     }
 }
+
+/// Above this [`BandMoments::roundness`], a tile's half-maximum band is no stripe, and
+/// where the response still holds the surfaces' texture (against a local background)
+/// the tile is not searched ([`Detector::texture_kept`]). The squares of a checkerboard
+/// in a laser's own hue narrower than the local background's window stay in the
+/// response, and its widest scale blurs them into ridges along their diagonals; their
+/// band fills the window about evenly (near 1). A stripe crossing the window is a
+/// band `(w / L)²`, 0.03 for 8 px across 48; bent at a right angle 0.25; ending in the
+/// window after `1.4 w`, 0.5. So a stripe is kept up to its last `1.4 w`, and
+/// one fainter than twice a laser-hued texture under it, whose band the texture
+/// fills, is lost: not told apart from the texture there.
+const MAX_BAND_ROUNDNESS: f64 = 0.5;
+
+/// [`Detector`]'s level of a tile not searched ([`MAX_BAND_ROUNDNESS`]).
+const NO_LINE: u8 = u8::MAX;
 
 /// A ridge point's flanks are sampled this many smoothing scales `σ` (at least 2 px)
 /// away across the line: a Gaussian stripe as wide as its scale is made for
@@ -314,8 +352,13 @@ pub(crate) struct Detector {
     pub tiles_x: usize,
     pub tiles_y: usize,
     levels: Vec<Level>,
-    /// Per tile: index into `levels` (meaningful on active tiles only).
+    /// Per tile: index into `levels` (meaningful on active tiles only), or [`NO_LINE`].
     tile_level: Vec<u8>,
+    /// The response still holds the surfaces' texture (a local background): tiles whose
+    /// band is round ([`MAX_BAND_ROUNDNESS`]) are not searched. Set per frame.
+    pub texture_kept: bool,
+    /// Active tiles not searched for that since the last [`Self::prepare`].
+    pub round_tiles: usize,
     pub response: Vec<f32>,
     /// Per pixel: nonzero where the response was zeroed for another laser's colour.
     pub masked: Vec<u8>,
@@ -360,6 +403,8 @@ impl Detector {
             tiles_x,
             tiles_y,
             tile_level: vec![0; tiles_x * tiles_y],
+            texture_kept: false,
+            round_tiles: 0,
             response: vec![0.0; n],
             masked: vec![0; n],
             row_s: vec![0.0; n],
@@ -403,6 +448,7 @@ impl Detector {
     ) {
         self.filled_box.fill(EMPTY);
         self.response_box.fill(EMPTY);
+        self.round_tiles = 0;
         self.add_tiles(active, fill);
     }
 
@@ -425,7 +471,12 @@ impl Detector {
             self.mark_boxes(tiles, |_| WIDTH_MARGIN);
             self.fill_boxes(fill);
             for (t, _) in tiles.iter().enumerate().filter(|(_, a)| **a) {
-                let width = self.stripe_width(t);
+                let (width, roundness) = self.stripe_width(t);
+                if self.texture_kept && roundness > MAX_BAND_ROUNDNESS {
+                    self.tile_level[t] = NO_LINE;
+                    self.round_tiles += 1;
+                    continue;
+                }
                 let last = self.levels.len() - 1;
                 let level = self
                     .levels
@@ -530,8 +581,9 @@ impl Detector {
     /// maximum is measured too: on a Gaussian stripe it is [`TOP_TO_HALF_WIDTH`] as
     /// wide as the half-maximum band, on a flat top about as wide; when it is much
     /// narrower than that ([`PEDESTAL_RATIO`]), the stripe is the peak on top and its
-    /// width is taken from the top band.
-    fn stripe_width(&self, t: usize) -> f64 {
+    /// width is taken from the top band. Also returns the half-maximum band's
+    /// [`BandMoments::roundness`].
+    fn stripe_width(&self, t: usize) -> (f64, f64) {
         let (x0, x1, y0, y1) = self.tile_bounds(t);
         let m = WIDTH_MARGIN;
         let (xa, xb) = (x0.saturating_sub(m), (x1 + m).min(self.width));
@@ -544,7 +596,7 @@ impl Detector {
                 .fold(peak, |p, &v| p.max(v));
         }
         if peak <= 0.0 {
-            return 0.0;
+            return (0.0, 0.0);
         }
         let (half, top) = (0.5 * peak, TOP_LEVEL * peak);
         let mut half_band = BandMoments::default();
@@ -559,15 +611,15 @@ impl Detector {
                 }
             }
         }
-        let width = half_band.width();
+        let (width, roundness) = (half_band.width(), half_band.roundness());
         if top_band.n >= 3 {
             // The pixel grid widens a sampled band by a pixel's own second moment (1/12).
             let top_width = (top_band.width().powi(2) + 1.0).sqrt() / TOP_TO_HALF_WIDTH;
             if top_width < PEDESTAL_RATIO * width {
-                return top_width;
+                return (top_width, roundness);
             }
         }
-        width
+        (width, roundness)
     }
 
     /// Finds ridge points of strength (grey levels) at least `min_strength` on the

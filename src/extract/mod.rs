@@ -72,7 +72,9 @@
 //! Gaussian stripe's ln-g offset is exact at any `σ`. A stripe on a pedestal (its
 //! sheet's glow along one side of it under water) would give the pedestal's width, so
 //! the band above 80 % of the maximum is measured too; when it is much narrower than a
-//! Gaussian's, the width comes from it. A given `line_width_px` forces
+//! Gaussian's, the width comes from it. Against a local background, a tile whose band
+//! is round rather than a band (a pattern in the laser's own hue spread over the
+//! window, `detect::MAX_BAND_ROUNDNESS`) is not searched. A given `line_width_px` forces
 //! `σ = max(w / (2√3), 1)`, and `sigma_px` forces `σ`.
 //!
 //! # Thresholds
@@ -453,6 +455,10 @@ pub struct ExtractStats {
     /// Points of curves dropped as running along an edge of the scene (without a
     /// laser-off frame: chroma fringes).
     pub fringe_points: usize,
+    /// Active tiles, summed over the lasers, not searched because what stands out
+    /// there is a patch or a pattern, not a stripe (without a laser-off frame:
+    /// texture in the laser's hue).
+    pub round_tiles: usize,
 }
 
 /// The per-frame extractor; owns and reuses all its scratch buffers.
@@ -601,6 +607,7 @@ impl Extractor {
         self.activate_rgb(src.frame(), background, self.local_active);
         let mut curves = Vec::new();
         self.stats = ExtractStats::default();
+        self.detector.texture_kept = self.local_active;
         for laser in 0..self.params.lasers.len() {
             self.detector.prepare(
                 &self.active[laser],
@@ -648,6 +655,7 @@ impl Extractor {
             // above only need where the curves end.
             curves.truncate(first);
             self.link_into(laser as u8, &mut curves, true);
+            self.stats.round_tiles += self.detector.round_tiles;
             self.stats.active_tiles += self.active[laser].iter().filter(|a| **a).count();
             self.stats.ridge_points += self.detector.points.len();
         }

@@ -63,6 +63,49 @@ fn checkerboard(light: [f64; 3], dark: [f64; 3]) -> impl Fn(f64, f64) -> [f64; 3
     }
 }
 
+/// A board in the green laser's own hue, its 12 px squares narrower than the local
+/// background's window and turned 30°: with no laser, no curve against the local
+/// background (the squares stay in the response, and the widest scale blurs them into
+/// ridges along their diagonals); a green stripe across it, of three times the board's
+/// contrast, is still found.
+#[test]
+fn a_board_in_the_lasers_own_hue_is_no_stripe() {
+    let (w, h) = (320u32, 240u32);
+    let (c, s) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
+    let board = move |x: f64, y: f64| {
+        let (u, v) = (c * x + s * y, -s * x + c * y);
+        if ((u / 12.0).floor() as i64 + (v / 12.0).floor() as i64).rem_euclid(2) == 0 {
+            [22.0, 50.0, 22.0]
+        } else {
+            [10.0, 20.0, 10.0]
+        }
+    };
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
+    let bare = ex.extract(&frame((w, h), &board, None, 2.0), &Background::local(w, h));
+    let lengths: Vec<f64> = bare.iter().map(Curve::length_px).collect();
+    assert!(bare.is_empty(), "curves on the bare board: {lengths:?}");
+    assert!(ex.stats().round_tiles > 0);
+    let (y0, slope) = (100.0, 0.2);
+    let stripe = Some((y0, slope, 1.5, 90.0, [0.3, 1.0, 0.3]));
+    let curves = ex.extract(
+        &frame((w, h), &board, stripe, 2.0),
+        &Background::local(w, h),
+    );
+    let mut e: Vec<f64> = distance_errors(&curves, (y0, slope), 30.0, w as f64)
+        .iter()
+        .map(|v| v.abs())
+        .collect();
+    e.sort_by(f64::total_cmp);
+    assert!(e.len() >= 150, "{} points of the stripe", e.len());
+    assert!(e[e.len() / 2] < 0.1, "median error {} px", e[e.len() / 2]);
+    assert!(
+        e[e.len() * 9 / 10] < 2.0,
+        "points off the stripe: {:?}",
+        &e[e.len() * 9 / 10..]
+    );
+}
+
 /// A warm-lit checkerboard, bright white squares (tinted as under a lamp, so their
 /// hue is red's), with no laser: no curve without a laser-off frame. Against black
 /// (no background, as before the local one) its squares' edges are curves.
