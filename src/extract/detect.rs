@@ -446,6 +446,17 @@ impl Detector {
         active: &[bool],
         fill: &mut impl FnMut(usize, usize, &mut [f32], &mut [u8]),
     ) {
+        // What the last laser or frame filled goes back to zero, as in a new detector:
+        // the flank and step samples reach past the filled margins, and must not read
+        // another frame's response there.
+        for t in 0..self.filled_box.len() {
+            let [x0, x1, y0, y1] = self.filled_box[t];
+            for y in y0..y1.min(self.height) {
+                let span = y * self.width + x0..y * self.width + x1;
+                self.response[span.clone()].fill(0.0);
+                self.masked[span].fill(0);
+            }
+        }
         self.filled_box.fill(EMPTY);
         self.response_box.fill(EMPTY);
         self.round_tiles = 0;
