@@ -949,12 +949,11 @@ fn stripe_on_a_region_darker_than_its_background_is_found() {
 }
 
 /// An extractor's curves of a frame do not depend on the frames it extracted before:
-/// `reconstruct` gives each rayon split an extractor of its own and the daemon's workers
+/// `reconstruct` lends its rayon splits extractors from one pool and the daemon's workers
 /// keep theirs for the whole scan, so any state carried from frame to frame would make
 /// the cloud depend on the schedule. Frame `k` of the bricks fixture, extracted fresh
-/// and after frames `0..k`, must match. (An extractor pool over a whole recording still
-/// changed the cloud of tuning seed 19 while a probe like this one found its frames'
-/// curves equal: see the CHANGELOG.)
+/// and after frames `0..k`, must match. (It passed while a reused extractor read
+/// response another frame had left: see `curves_do_not_depend_on_stale_response`.)
 #[test]
 fn curves_do_not_depend_on_the_frames_extracted_before() {
     use crate::capture::dump::{decode_rgb, DumpReader};
