@@ -948,6 +948,14 @@ fn stripe_on_a_region_darker_than_its_background_is_found() {
     );
 }
 
+/// The same curves, point for point, of the same lasers.
+fn same_curves(a: &[Curve], b: &[Curve]) -> bool {
+    a.len() == b.len()
+        && a.iter()
+            .zip(b)
+            .all(|(a, b)| a.points_px == b.points_px && a.laser == b.laser)
+}
+
 /// An extractor's curves of a frame do not depend on the frames it extracted before:
 /// `reconstruct` lends its rayon splits extractors from one pool and the daemon's workers
 /// keep theirs for the whole scan, so any state carried from frame to frame would make
@@ -980,12 +988,7 @@ fn curves_do_not_depend_on_the_frames_extracted_before() {
         let fresh = Extractor::new(&params, &camera)
             .expect("extractor")
             .extract(frame, &background);
-        let same = after.len() == fresh.len()
-            && after
-                .iter()
-                .zip(&fresh)
-                .all(|(a, b)| a.points_px == b.points_px && a.laser == b.laser);
-        if !same {
+        if !same_curves(&after, &fresh) {
             differing.push(k);
         }
     }
@@ -1047,13 +1050,7 @@ fn curves_do_not_depend_on_stale_response() {
         let after = warm.extract(&frame, &background);
         let mut new = Extractor::new(&params, &camera).expect("extractor");
         let fresh = new.extract(&frame, &background);
-        let same = warm.detector.response == new.detector.response
-            && after.len() == fresh.len()
-            && after
-                .iter()
-                .zip(&fresh)
-                .all(|(a, b)| a.points_px == b.points_px && a.laser == b.laser);
-        if !same {
+        if warm.detector.response != new.detector.response || !same_curves(&after, &fresh) {
             differing.push(k);
         }
     }
