@@ -205,6 +205,18 @@ const MAX_BAND_ROUNDNESS: f64 = 0.5;
 /// [`Detector`]'s level of a tile not searched ([`MAX_BAND_ROUNDNESS`]).
 const NO_LINE: u8 = u8::MAX;
 
+/// A tile's band is flat-topped, a patch of a surface rather than a beam, when its part
+/// above [`TOP_LEVEL`] of the peak is at least this share of its half-maximum width
+/// (after the grid's own pixel). A Gaussian's share is [`TOP_TO_HALF_WIDTH`] (0.567); a
+/// box's is 1, less its blurred sides. Then, against a local background, the tile is
+/// not searched, unless the laser's own channel is clipped there (a clipped core is
+/// flat too, and is a stripe).
+const FLAT_RATIO: f64 = 0.8;
+/// Below this half-maximum width (px) a band's flatness is not judged: at 6 px a
+/// Gaussian's top band is 3.4 px, and a pixel more of it, by sampling, gives 0.74, still
+/// under [`FLAT_RATIO`]; narrower, a pixel is too much of the measure.
+const FLAT_MIN_WIDTH: f64 = 6.0;
+
 /// A ridge point's flanks are sampled this many smoothing scales `σ` (at least 2 px)
 /// away across the line: a Gaussian stripe as wide as its scale is made for
 /// (`2√3 σ`) has fallen to a quarter there, a narrower one further.
@@ -360,7 +372,8 @@ pub(crate) struct Detector {
     /// Active tiles not searched for that since the last [`Self::prepare`].
     pub round_tiles: usize,
     pub response: Vec<f32>,
-    /// Per pixel: nonzero where the response was zeroed for another laser's colour.
+    /// Per pixel: bit 0 where the response was zeroed for another laser's colour, bit 1
+    /// where the laser's own channel is clipped (against a local background only).
     pub masked: Vec<u8>,
     row_s: Vec<f32>,
     row_d1: Vec<f32>,
@@ -593,7 +606,7 @@ impl Detector {
     /// wide as the half-maximum band, on a flat top about as wide; when it is much
     /// narrower than that ([`PEDESTAL_RATIO`]), the stripe is the peak on top and its
     /// width is taken from the top band. Also returns the half-maximum band's
-    /// [`BandMoments::roundness`].
+    /// [`BandMoments::roundness`], infinite for a flat top ([`FLAT_RATIO`]).
     fn stripe_width(&self, t: usize) -> (f64, f64) {
         let (x0, x1, y0, y1) = self.tile_bounds(t);
         let m = WIDTH_MARGIN;
@@ -622,7 +635,21 @@ impl Detector {
                 }
             }
         }
-        let (width, roundness) = (half_band.width(), half_band.roundness());
+        let (width, mut roundness) = (half_band.width(), half_band.roundness());
+        if top_band.n >= 3 && width >= FLAT_MIN_WIDTH {
+            let ratio = (top_band.width().powi(2) + 1.0).sqrt() / width;
+            let clipped = || {
+                (ya..yb).any(|y| {
+                    self.masked[y * w + xa..y * w + xb]
+                        .iter()
+                        .any(|m| m & 2 != 0)
+                })
+            };
+            // A flat top is no stripe: as good as round.
+            if ratio >= FLAT_RATIO && !clipped() {
+                roundness = f64::INFINITY;
+            }
+        }
         if top_band.n >= 3 {
             // The pixel grid widens a sampled band by a pixel's own second moment (1/12).
             let top_width = (top_band.width().powi(2) + 1.0).sqrt() / TOP_TO_HALF_WIDTH;
@@ -782,6 +809,7 @@ impl Detector {
             masked[yy * w + xa..yy * w + xb]
                 .iter()
                 .fold(0, |a, &m| a | m)
+                & 1
                 != 0
         })
     }

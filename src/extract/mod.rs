@@ -74,7 +74,8 @@
 //! the band above 80 % of the maximum is measured too; when it is much narrower than a
 //! Gaussian's, the width comes from it. Against a local background, a tile whose band
 //! is round rather than a band (a pattern in the laser's own hue spread over the
-//! window, `detect::MAX_BAND_ROUNDNESS`) is not searched. A given `line_width_px` forces
+//! window, `detect::MAX_BAND_ROUNDNESS`) or flat-topped where its own channel is not
+//! clipped (a patch of a surface in that hue, `detect::FLAT_RATIO`) is not searched. A given `line_width_px` forces
 //! `σ = max(w / (2√3), 1)`, and `sigma_px` forces `σ`.
 //!
 //! # Thresholds
@@ -456,8 +457,8 @@ pub struct ExtractStats {
     /// laser-off frame: chroma fringes).
     pub fringe_points: usize,
     /// Active tiles, summed over the lasers, not searched because what stands out
-    /// there is a patch or a pattern, not a stripe (without a laser-off frame:
-    /// texture in the laser's hue).
+    /// there is a pattern or a flat-topped patch, not a stripe (without a laser-off
+    /// frame: texture in the laser's hue).
     pub round_tiles: usize,
 }
 
@@ -1119,7 +1120,9 @@ fn response_rgb<'a>(
                     // centred by the automatic scale).
                     lut.response(laser, dr, dg, db)
                 };
-                *m = u8::from(other_laser);
+                // Bit 1: the own channel clipped, which a flat top may be
+                // (`detect::FLAT_RATIO`).
+                *m = u8::from(other_laser) | (u8::from(local && lut.own_clipped(laser, f)) << 1);
                 *o = r as f32;
             }
             i = end;

@@ -106,6 +106,33 @@ fn a_board_in_the_lasers_own_hue_is_no_stripe() {
     );
 }
 
+/// A strip of a surface in the green laser's own hue, 9 px wide with sharp sides (a
+/// square of a green checker cut by an object's silhouette): against the local
+/// background it is a bar of the laser's hue whose two sides are alike, as a stripe's
+/// are, and its band is long. Only its profile, a flat top where a beam's is a bell,
+/// tells it apart: no curve.
+#[test]
+fn a_flat_bar_in_the_lasers_own_hue_is_no_stripe() {
+    let (w, h) = (320u32, 240u32);
+    let (c, s) = (20f64.to_radians().cos(), 20f64.to_radians().sin());
+    let bar = move |x: f64, y: f64| {
+        let d = (-s * (x - 160.0) + c * (y - 120.0)).abs();
+        // Sharp sides: from inside to outside over one pixel.
+        let inside = (5.0 - d).clamp(0.0, 1.0);
+        [
+            40.0 - 15.0 * inside,
+            30.0 + 30.0 * inside,
+            28.0 - 3.0 * inside,
+        ]
+    };
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&ExtractParams::default(), &camera).expect("extractor");
+    let curves = ex.extract(&frame((w, h), &bar, None, 2.0), &Background::local(w, h));
+    let lengths: Vec<f64> = curves.iter().map(Curve::length_px).collect();
+    assert!(curves.is_empty(), "curves on the bar: {lengths:?}");
+    assert!(ex.stats().round_tiles > 0);
+}
+
 /// A warm-lit checkerboard, bright white squares (tinted as under a lamp, so their
 /// hue is red's), with no laser: no curve without a laser-off frame. Against black
 /// (no background, as before the local one) its squares' edges are curves.
