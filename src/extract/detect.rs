@@ -202,7 +202,7 @@ impl BandMoments {
 /// fills, is lost: not told apart from the texture there.
 const MAX_BAND_ROUNDNESS: f64 = 0.5;
 
-/// [`Detector`]'s level of a tile not searched ([`MAX_BAND_ROUNDNESS`]).
+/// [`Detector`]'s level of a tile not searched ([`MAX_BAND_ROUNDNESS`], [`FLAT_RATIO`]).
 const NO_LINE: u8 = u8::MAX;
 
 /// A tile's band is flat-topped, a patch of a surface rather than a beam, when its part
@@ -367,7 +367,8 @@ pub(crate) struct Detector {
     /// Per tile: index into `levels` (meaningful on active tiles only), or [`NO_LINE`].
     tile_level: Vec<u8>,
     /// The response still holds the surfaces' texture (a local background): tiles whose
-    /// band is round ([`MAX_BAND_ROUNDNESS`]) are not searched. Set per frame.
+    /// band is round ([`MAX_BAND_ROUNDNESS`]) or flat-topped ([`FLAT_RATIO`]) are not
+    /// searched. Set per frame.
     pub texture_kept: bool,
     /// Active tiles not searched for that since the last [`Self::prepare`].
     pub round_tiles: usize,
@@ -495,8 +496,8 @@ impl Detector {
             self.mark_boxes(tiles, |_| WIDTH_MARGIN);
             self.fill_boxes(fill);
             for (t, _) in tiles.iter().enumerate().filter(|(_, a)| **a) {
-                let (width, roundness) = self.stripe_width(t);
-                if self.texture_kept && roundness > MAX_BAND_ROUNDNESS {
+                let (width, no_line) = self.stripe_width(t);
+                if no_line {
                     self.tile_level[t] = NO_LINE;
                     self.round_tiles += 1;
                     continue;
@@ -605,9 +606,11 @@ impl Detector {
     /// maximum is measured too: on a Gaussian stripe it is [`TOP_TO_HALF_WIDTH`] as
     /// wide as the half-maximum band, on a flat top about as wide; when it is much
     /// narrower than that ([`PEDESTAL_RATIO`]), the stripe is the peak on top and its
-    /// width is taken from the top band. Also returns the half-maximum band's
-    /// [`BandMoments::roundness`], infinite for a flat top ([`FLAT_RATIO`]).
-    fn stripe_width(&self, t: usize) -> (f64, f64) {
+    /// width is taken from the top band. Also returns whether, the response holding
+    /// texture ([`Self::texture_kept`]), the band is no stripe: round
+    /// ([`MAX_BAND_ROUNDNESS`]) or flat-topped where the own channel is not clipped
+    /// ([`FLAT_RATIO`]).
+    fn stripe_width(&self, t: usize) -> (f64, bool) {
         let (x0, x1, y0, y1) = self.tile_bounds(t);
         let m = WIDTH_MARGIN;
         let (xa, xb) = (x0.saturating_sub(m), (x1 + m).min(self.width));
@@ -620,7 +623,7 @@ impl Detector {
                 .fold(peak, |p, &v| p.max(v));
         }
         if peak <= 0.0 {
-            return (0.0, 0.0);
+            return (0.0, false);
         }
         let (half, top) = (0.5 * peak, TOP_LEVEL * peak);
         let mut half_band = BandMoments::default();
@@ -635,9 +638,11 @@ impl Detector {
                 }
             }
         }
-        let (width, mut roundness) = (half_band.width(), half_band.roundness());
-        if top_band.n >= 3 && width >= FLAT_MIN_WIDTH {
-            let ratio = (top_band.width().powi(2) + 1.0).sqrt() / width;
+        let width = half_band.width();
+        // The pixel grid widens a sampled band by a pixel's own second moment (1/12).
+        let top_raw = (top_band.n >= 3).then(|| (top_band.width().powi(2) + 1.0).sqrt());
+        let no_line = self.texture_kept && {
+            let flat = top_raw.is_some_and(|t| width >= FLAT_MIN_WIDTH && t / width >= FLAT_RATIO);
             let clipped = || {
                 (ya..yb).any(|y| {
                     self.masked[y * w + xa..y * w + xb]
@@ -645,19 +650,14 @@ impl Detector {
                         .any(|m| m & 2 != 0)
                 })
             };
-            // A flat top is no stripe: as good as round.
-            if ratio >= FLAT_RATIO && !clipped() {
-                roundness = f64::INFINITY;
-            }
-        }
-        if top_band.n >= 3 {
-            // The pixel grid widens a sampled band by a pixel's own second moment (1/12).
-            let top_width = (top_band.width().powi(2) + 1.0).sqrt() / TOP_TO_HALF_WIDTH;
+            half_band.roundness() > MAX_BAND_ROUNDNESS || (flat && !clipped())
+        };
+        if let Some(top_width) = top_raw.map(|t| t / TOP_TO_HALF_WIDTH) {
             if top_width < PEDESTAL_RATIO * width {
-                return (top_width, roundness);
+                return (top_width, no_line);
             }
         }
-        (width, roundness)
+        (width, no_line)
     }
 
     /// Finds ridge points of strength (grey levels) at least `min_strength` on the

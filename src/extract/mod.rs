@@ -75,8 +75,8 @@
 //! Gaussian's, the width comes from it. Against a local background, a tile whose band
 //! is round rather than a band (a pattern in the laser's own hue spread over the
 //! window, `detect::MAX_BAND_ROUNDNESS`) or flat-topped where its own channel is not
-//! clipped (a patch of a surface in that hue, `detect::FLAT_RATIO`) is not searched. A given `line_width_px` forces
-//! `σ = max(w / (2√3), 1)`, and `sigma_px` forces `σ`.
+//! clipped (a patch of a surface in that hue, `detect::FLAT_RATIO`) is not searched.
+//! A given `line_width_px` forces `σ = max(w / (2√3), 1)`, and `sigma_px` forces `σ`.
 //!
 //! # Thresholds
 //! `high_contrast` and `low_contrast` are absolute, in grey levels (0–255) of the

@@ -92,9 +92,9 @@ pub fn extract_frames(
     let policy = Policy::new(&config.background)?;
     let mut rolling = Rolling::new(policy, camera.width, camera.height);
     rolling.end_at(frames.len());
-    // Validate the parameters once; every worker thread then builds its own extractor
-    // (they own their scratch buffers), which cannot fail any more.
-    // (They count into one set of one-time warnings: each is given once per run.)
+    // Validate the parameters once; the extractors the pool lends out (each owns its
+    // scratch buffers) are then built without fail, and count into this one's one-time
+    // warnings, so that each is given once per run.
     let warnings = Extractor::new(&config.extract, camera)?.warnings();
     let (n, done, skipped) = (frames.len(), AtomicUsize::new(0), Skipped::default());
     let mut pass = frames.pass(camera)?;
