@@ -11,7 +11,7 @@
 //! all on one image line leave the plane free to turn about the 3D line through them).
 //! Crossings whose Sampson residual exceeds `k σ_img` are dropped and the plane refit.
 
-use super::nullspace::sampson;
+use super::nullspace::{sampson, sampson_squared};
 use crate::intersect::Crossing;
 use nalgebra::{Matrix3, Vector3};
 
@@ -325,22 +325,14 @@ fn consensus_start(
                 .filter_map(|t| sample_plane([row(t[0]), row(t[1]), ortho], min_sv)),
         );
     }
-    // Every candidate meets every known crossing: the squared Sampson residual
-    // `((v − v_j)·u)² / |(v − v_j)_xy|²` spares a square root per pair.
+    // Every candidate meets every known crossing: the squared residual spares a square
+    // root per pair.
     let thr2 = thr * thr;
     let mut best: Option<(usize, f64, Vector3<f64>)> = None;
     for v in candidates {
         let (mut count, mut cost) = (0usize, 0.0);
         for (k, vj) in known {
-            let d = v - vj;
-            let g2 = d.x * d.x + d.y * d.y;
-            let u = crossings[*k].u;
-            let r = d.x * u[0] + d.y * u[1] + d.z;
-            let e2 = if g2 > 0.0 && g2.is_finite() {
-                r * r / g2
-            } else {
-                f64::INFINITY
-            };
+            let e2 = sampson_squared(&v, vj, crossings[*k].u);
             if e2 <= thr2 {
                 count += 1;
             }

@@ -238,6 +238,19 @@ fn smallest_dense(mat: &faer::Mat<f64>) -> Result<(Vec<f64>, f64, f64), SolveErr
     Ok((v0, *s.get(0), *s.get(1)))
 }
 
+/// The square of [`sampson`]'s residual, without its square root (infinite where the
+/// planes agree): for loops that only compare residuals with a bound.
+pub fn sampson_squared(vi: &Vector3<f64>, vj: &Vector3<f64>, u: [f64; 2]) -> f64 {
+    let d = vi - vj;
+    let g2 = d.x * d.x + d.y * d.y;
+    let r = d.x * u[0] + d.y * u[1] + d.z;
+    if g2 > 0.0 && g2.is_finite() {
+        r * r / g2
+    } else {
+        f64::INFINITY
+    }
+}
+
 /// The Sampson residual `e = (v_i − v_j) · u / |(v_i − v_j)_{xy}|` of a crossing and
 /// the inverse of its gradient norm `1 / |(v_i − v_j)_{xy}|`; `None` if the planes agree.
 pub fn sampson(vi: &Vector3<f64>, vj: &Vector3<f64>, u: [f64; 2]) -> Option<(f64, f64)> {
