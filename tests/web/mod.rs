@@ -114,22 +114,30 @@ fn pixels_off(image: &image::RgbaImage, rect: (f64, f64, f64, f64), background: 
     n
 }
 
-/// Counts, in the page, the pixels of a canvas unlike `background`, and the vivid ones
-/// (a WebGL canvas is copied to a 2D one first; the page keeps its drawing buffer).
-const COUNT_CANVAS_PIXELS: &str = r#"
-    const [id, bg] = arguments;
-    const src = document.getElementById(id);
-    const c = document.createElement('canvas');
-    c.width = src.width; c.height = src.height;
-    const ctx = c.getContext('2d');
-    ctx.drawImage(src, 0, 0);
-    const d = ctx.getImageData(0, 0, c.width, c.height).data;
-    let n = 0, vivid = 0;
-    for (let i = 0; i < d.length; i += 4) {
-        if (Math.abs(d[i] - bg[0]) > 24 || Math.abs(d[i + 1] - bg[1]) > 24 || Math.abs(d[i + 2] - bg[2]) > 24) n++;
-        if (Math.max(d[i], d[i + 1], d[i + 2]) - Math.min(d[i], d[i + 1], d[i + 2]) > 128) vivid++;
-    }
-    return [n, c.width * c.height, vivid];
+/// Counts, in the page, the pixels of each canvas unlike its background, and the vivid
+/// ones (a WebGL canvas is copied to a 2D one first; the page keeps its drawing buffer),
+/// and returns them with the page's state: one script, so no message lands in between.
+const COUNT_CANVASES: &str = r#"
+    const [cloudBg, coverageBg] = arguments;
+    const count = (id, bg) => {
+        const src = document.getElementById(id);
+        const c = document.createElement('canvas');
+        c.width = src.width; c.height = src.height;
+        const ctx = c.getContext('2d');
+        ctx.drawImage(src, 0, 0);
+        const d = ctx.getImageData(0, 0, c.width, c.height).data;
+        let n = 0, vivid = 0;
+        for (let i = 0; i < d.length; i += 4) {
+            if (Math.abs(d[i] - bg[0]) > 24 || Math.abs(d[i + 1] - bg[1]) > 24 || Math.abs(d[i + 2] - bg[2]) > 24) n++;
+            if (Math.max(d[i], d[i + 1], d[i + 2]) - Math.min(d[i], d[i + 1], d[i + 2]) > 128) vivid++;
+        }
+        return [n, c.width * c.height, vivid];
+    };
+    return {
+        cloud: count('cloud', cloudBg),
+        coverage: count('coverage', coverageBg),
+        view: JSON.parse(JSON.stringify(window.crosslineView)),
+    };
 "#;
 
 /// Waits for two animation frames, so that what the page received is drawn.
@@ -139,6 +147,89 @@ const NEXT_FRAMES: &str =
 /// The cloud's clear colour and the empty coverage cell, as `web/app.js` draws them.
 const CLOUD_BACKGROUND: [u8; 3] = [0x10, 0x14, 0x18];
 const COVERAGE_EMPTY: [u8; 3] = [24, 32, 40];
+
+/// What the test saw on the page at one moment.
+struct Reading {
+    /// The page's state before the screenshot, and after the canvases were counted.
+    before: Value,
+    after: Value,
+    shot: Shot,
+    /// Pixels unlike the background, all pixels, and vivid pixels, of each canvas.
+    cloud: (u64, u64, u64),
+    coverage: (u64, u64, u64),
+}
+
+impl Reading {
+    /// One epoch from the screenshot to the counts, and points in it.
+    fn stable(&self) -> bool {
+        self.before["epoch"] == self.after["epoch"]
+            && self.before["count"].as_u64().unwrap_or(0) > 0
+            && self.after["count"].as_u64().unwrap_or(0) > 0
+    }
+}
+
+/// The screenshot, and its pixels unlike the background in the lower half of the 3D
+/// view (below the colour toggle) and in the coverage map.
+struct Shot {
+    png: Vec<u8>,
+    cloud_px: usize,
+    coverage_px: usize,
+}
+
+/// Reads the page: two animation frames so that what it received is drawn, its state,
+/// a screenshot, then both canvases and its state again in one script (atomic with
+/// respect to the page's message handlers).
+async fn read_page(client: &fantoccini::Client) -> Reading {
+    client
+        .execute(NEXT_FRAMES, vec![])
+        .await
+        .expect("animation frames");
+    let before = client
+        .execute("return window.crosslineView;", vec![])
+        .await
+        .expect("the page's state");
+    let png = client.screenshot().await.expect("screenshot");
+    let image = image::load_from_memory(&png)
+        .expect("a PNG screenshot")
+        .to_rgba8();
+    let rect = |id: &'static str| async move {
+        client
+            .find(Locator::Id(id))
+            .await
+            .expect("a canvas")
+            .rectangle()
+            .await
+            .expect("its place")
+    };
+    let cloud_rect = rect("cloud").await;
+    let lower = (
+        cloud_rect.0,
+        cloud_rect.1 + cloud_rect.3 / 2.0,
+        cloud_rect.2,
+        cloud_rect.3 / 2.0,
+    );
+    let shot = Shot {
+        cloud_px: pixels_off(&image, lower, CLOUD_BACKGROUND),
+        coverage_px: pixels_off(&image, rect("coverage").await, COVERAGE_EMPTY),
+        png,
+    };
+    let v = client
+        .execute(
+            COUNT_CANVASES,
+            vec![json!(CLOUD_BACKGROUND), json!(COVERAGE_EMPTY)],
+        )
+        .await
+        .expect("count canvas pixels");
+    let n = |c: &Value, i: usize| c[i].as_u64().unwrap_or(0);
+    let three = |c: &Value| (n(c, 0), n(c, 1), n(c, 2));
+    Reading {
+        before,
+        after: v["view"].clone(),
+        shot,
+        cloud: three(&v["cloud"]),
+        coverage: three(&v["coverage"]),
+    }
+}
 
 #[test]
 fn live_view_in_chromium_shows_status_cloud_and_coverage() {
@@ -166,14 +257,27 @@ fn live_view_in_chromium_shows_status_cloud_and_coverage() {
                     // WebGL without a GPU: ANGLE on SwiftShader, Chromium's CPU renderer.
                     "--use-angle=swiftshader",
                     "--enable-unsafe-swiftshader",
+                    // A profile of its own: a browser left over from another run
+                    // cannot hold its lock.
+                    format!("--user-data-dir={}", dir.join("chromium-profile").display()),
                 ],
             }),
         );
-        let client = ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
-            .capabilities(caps)
-            .connect(&webdriver_url)
-            .await
-            .expect("a Chromium session through chromedriver");
+        // Chromium sometimes does not come up within chromedriver's wait on a loaded
+        // machine; a second try is a new browser, not a retry of the test's checks.
+        let mut tries = 0;
+        let client = loop {
+            tries += 1;
+            match ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
+                .capabilities(caps.clone())
+                .connect(&webdriver_url)
+                .await
+            {
+                Ok(client) => break client,
+                Err(e) if tries < 3 => eprintln!("live view: no Chromium session yet ({e}); again"),
+                Err(e) => panic!("no Chromium session through chromedriver after {tries} tries: {e}"),
+            }
+        };
 
         let started = Instant::now();
         let mut child = serve_on(dir, &crate::daemon::dump(), "realtime", "127.0.0.1:0")
@@ -209,67 +313,48 @@ fn live_view_in_chromium_shows_status_cloud_and_coverage() {
             }
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
-        let seen_after = started.elapsed();
         assert!(processed > 0, "the page never showed processed frames; page state {view}");
         assert!(view["count"].as_u64().unwrap_or(0) > 0, "the page never received points: {view}");
-        assert_eq!(view["webgl"], true, "no WebGL in headless Chromium: {view}");
-        // Two animation frames, so that the last batch is drawn.
-        client.execute(NEXT_FRAMES, vec![]).await.expect("animation frames");
-
-        let png = client.screenshot().await.expect("screenshot");
+        // The page clears its cloud and coverage map when a new epoch starts, and the
+        // replay keeps running while the test reads, so one reading is the canvases,
+        // the screenshot and the page's state all within one epoch holding points.
+        // A reading that an epoch cut in two is taken again.
+        let mut reading = None;
+        for _ in 0..20 {
+            let r = read_page(&client).await;
+            if r.stable() {
+                reading = Some(r);
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        let seen_after = started.elapsed();
+        let Reading { before, after, shot, cloud, coverage, .. } =
+            reading.expect("twenty readings of the page were all cut by a new epoch or empty");
+        let (cloud_px, cloud_all, rgb_vivid) = cloud;
+        let (coverage_px, coverage_all, _) = coverage;
         let path = screenshot_path();
         std::fs::create_dir_all(path.parent().expect("target dir")).expect("target dir");
-        std::fs::write(&path, &png).expect("write the screenshot");
-        let shot = image::load_from_memory(&png).expect("a PNG screenshot").to_rgba8();
-
-        // The canvases, read in the page...
-        let count = |id: &str, bg: [u8; 3]| {
-            let client = client.clone();
-            let id = id.to_string();
-            async move {
-                let v = client
-                    .execute(COUNT_CANVAS_PIXELS, vec![json!(id), json!(bg)])
-                    .await
-                    .expect("count canvas pixels");
-                let n = |i: usize| v[i].as_u64().unwrap_or(0);
-                (n(0), n(1), n(2))
-            }
-        };
-        let (cloud_px, cloud_all, rgb_vivid) = count("cloud", CLOUD_BACKGROUND).await;
-        let (coverage_px, coverage_all, _) = count("coverage", COVERAGE_EMPTY).await;
-        // ...and on the screenshot: the lower half of the 3D view (below the colour
-        // toggle) and the coverage map.
-        let cloud_rect = client
-            .find(Locator::Id("cloud"))
-            .await
-            .expect("3D canvas")
-            .rectangle()
-            .await
-            .expect("its place");
-        let lower = (cloud_rect.0, cloud_rect.1 + cloud_rect.3 / 2.0, cloud_rect.2, cloud_rect.3 / 2.0);
-        let coverage_rect = client
-            .find(Locator::Id("coverage"))
-            .await
-            .expect("coverage map")
-            .rectangle()
-            .await
-            .expect("its place");
-        let shot_cloud = pixels_off(&shot, lower, CLOUD_BACKGROUND);
-        let shot_coverage = pixels_off(&shot, coverage_rect, COVERAGE_EMPTY);
-        let covered = view["coveredCells"].as_u64().unwrap_or(0);
+        std::fs::write(&path, &shot.png).expect("write the screenshot");
+        let covered = after["coveredCells"].as_u64().unwrap_or(0);
         eprintln!(
-            "live view: page showed {processed} processed frames and {} points {:.1} s after serve started; \
-             3D canvas {cloud_px} of {cloud_all} px lit ({shot_cloud} in the lower half of the screenshot); \
-             coverage {coverage_px} of {coverage_all} cells marked ({shot_coverage} px on the screenshot); {}",
-            view["count"],
+            "live view: page showed {processed} processed frames and {} points (epoch {}) {:.1} s \
+             after serve started; 3D canvas {cloud_px} of {cloud_all} px lit ({} in the lower half \
+             of the screenshot); coverage {coverage_px} of {coverage_all} cells marked ({} px on \
+             the screenshot); {}",
+            after["count"],
+            before["epoch"],
             seen_after.as_secs_f64(),
+            shot.cloud_px,
+            shot.coverage_px,
             path.display()
         );
+        assert_eq!(after["webgl"], true, "no WebGL in headless Chromium: {after}");
         assert!(cloud_px > 500, "the 3D canvas shows almost no points: {cloud_px} of {cloud_all}");
-        assert!(shot_cloud > 500, "the screenshot shows almost no points: {shot_cloud}");
-        assert!(coverage_px > 0 && shot_coverage > 0, "the coverage map is empty");
+        assert!(shot.cloud_px > 500, "the screenshot shows almost no points: {}", shot.cloud_px);
+        assert!(coverage_px > 0 && shot.coverage_px > 0, "the coverage map is empty: {after}");
         assert!(coverage_px < coverage_all, "the coverage map is full: {coverage_px} of {coverage_all}");
-        assert!(covered > 0, "the page counted no covered cells: {view}");
+        assert!(covered > 0, "the page counted no covered cells: {after}");
 
         // Colour by depth: the camera's muted colours become a vivid hue ramp.
         client
@@ -279,8 +364,15 @@ fn live_view_in_chromium_shows_status_cloud_and_coverage() {
             .click()
             .await
             .expect("click it");
-        client.execute(NEXT_FRAMES, vec![]).await.expect("animation frames");
-        let (_, _, depth_vivid) = count("cloud", CLOUD_BACKGROUND).await;
+        let mut depth_vivid = 0;
+        for _ in 0..20 {
+            let r = read_page(&client).await;
+            if r.stable() {
+                depth_vivid = r.cloud.2;
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
         eprintln!("live view: vivid pixels {rgb_vivid} coloured by RGB, {depth_vivid} by depth");
         assert!(
             depth_vivid > 500 && depth_vivid > 2 * rgb_vivid,
