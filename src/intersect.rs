@@ -449,16 +449,55 @@ pub fn point_segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     (p[0] - a[0] - t * ex).hypot(p[1] - a[1] - t * ey)
 }
 
+/// The longest step between consecutive `points`, rounded up a little, so that it
+/// bounds every step for [`nearest_index`] whatever the rounding.
+pub fn max_step(points: &[[f64; 2]]) -> f64 {
+    let m = points
+        .windows(2)
+        .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
+        .fold(0.0, f64::max);
+    m * (1.0 + 1e-9) + 1e-12
+}
+
+/// Index of the point of `points` nearest `near` (the first of equals, as
+/// `Iterator::min_by` gives), where no two consecutive points are further apart than
+/// `max_step` ([`max_step`]). Exact, but it skips what cannot win: the distance to
+/// `near` changes by at most `max_step` a point, so from a point `d` away, with `best`
+/// found so far, the next `(d − best) / max_step` points are further than `best`. On a
+/// run of dense points along a stripe that is a few dozen looks instead of hundreds.
+pub fn nearest_index(points: &[[f64; 2]], near: [f64; 2], max_step: f64) -> Option<usize> {
+    let d2 = |p: &[f64; 2]| (p[0] - near[0]).powi(2) + (p[1] - near[1]).powi(2);
+    let mut best: Option<(f64, usize)> = None;
+    let mut i = 0;
+    while i < points.len() {
+        let di2 = d2(&points[i]);
+        let best_d2 = match best {
+            Some((b, _)) if b <= di2 => b,
+            _ => {
+                best = Some((di2, i));
+                di2
+            }
+        };
+        // Points closer to i than (d − best) / max_step are all further than best; a
+        // margin keeps rounding on the safe side.
+        let gap = di2.sqrt() - best_d2.sqrt() - 1e-9 * (1.0 + di2.sqrt());
+        let skip = if max_step > 0.0 && gap > max_step {
+            (gap / max_step).floor() as usize
+        } else {
+            1
+        };
+        i += skip.max(1);
+    }
+    best.map(|(_, i)| i)
+}
+
 /// The dense points of a curve within `radius` of `near`, as one contiguous run along
 /// the curve around its point closest to `near` (so a curve passing twice near the same
-/// place contributes only the pass that crosses there).
-pub fn dense_run(points: &[[f64; 2]], near: [f64; 2], radius: f64) -> &[[f64; 2]] {
+/// place contributes only the pass that crosses there). `max_step` bounds the steps
+/// between consecutive points ([`max_step`]).
+pub fn dense_run(points: &[[f64; 2]], near: [f64; 2], radius: f64, max_step: f64) -> &[[f64; 2]] {
     let d2 = |p: &[f64; 2]| (p[0] - near[0]).powi(2) + (p[1] - near[1]).powi(2);
-    let Some((closest, _)) = points
-        .iter()
-        .enumerate()
-        .min_by(|a, b| d2(a.1).total_cmp(&d2(b.1)))
-    else {
+    let Some(closest) = nearest_index(points, near, max_step) else {
         return &[];
     };
     let r2 = radius * radius;
@@ -498,8 +537,8 @@ pub fn refine_crossing(
     u: [f64; 2],
     radius: f64,
 ) -> Option<RefinedCrossing> {
-    let fa = LocalQuadratic::fit(dense_run(a, u, radius))?;
-    let fb = LocalQuadratic::fit(dense_run(b, u, radius))?;
+    let fa = LocalQuadratic::fit(dense_run(a, u, radius, max_step(a)))?;
+    let fb = LocalQuadratic::fit(dense_run(b, u, radius, max_step(b)))?;
     let (mut t, mut s) = (fa.param_of(u), fb.param_of(u));
     for _ in 0..8 {
         let (pa, pb) = (fa.at(t), fb.at(s));
@@ -549,6 +588,61 @@ pub struct RefinedCrossing {
 mod tests {
     use super::*;
     use crate::solve::synthetic::{analytic_crossings, curve_polyline, random_scan, ScanSpec};
+
+    /// The skipping search finds the very point a full scan finds, the first of equals,
+    /// on walks that wander back, stall, repeat points and jump.
+    #[test]
+    fn nearest_index_is_the_full_scans_answer() {
+        let mut rng = crate::rng::SplitMix64::new(7);
+        for case in 0..400 {
+            let n = 1 + (rng.next_u64() % 300) as usize;
+            let mut p = [0.0f64, 0.0];
+            let mut heading = 0.0f64;
+            let points: Vec<[f64; 2]> = (0..n)
+                .map(|_| {
+                    heading += (rng.next_f64() - 0.5) * if case % 3 == 0 { 3.0 } else { 0.3 };
+                    let step = match rng.next_u64() % 10 {
+                        0 => 0.0,
+                        1 => 5.0 * rng.next_f64(),
+                        _ => 0.5 + 0.7 * rng.next_f64(),
+                    };
+                    p = [p[0] + step * heading.cos(), p[1] + step * heading.sin()];
+                    // Integer grids make exact ties.
+                    if case % 5 == 0 {
+                        [p[0].round(), p[1].round()]
+                    } else {
+                        p
+                    }
+                })
+                .collect();
+            let m = max_step(&points);
+            for _ in 0..20 {
+                let k = (rng.next_u64() % n as u64) as usize;
+                let near = [
+                    points[k][0] + 20.0 * (rng.next_f64() - 0.5),
+                    points[k][1] + 20.0 * (rng.next_f64() - 0.5),
+                ];
+                let d2 = |q: &[f64; 2]| (q[0] - near[0]).powi(2) + (q[1] - near[1]).powi(2);
+                let full = (0..n).min_by(|&i, &j| d2(&points[i]).total_cmp(&d2(&points[j])));
+                assert_eq!(nearest_index(&points, near, m), full, "case {case}");
+            }
+        }
+        // Out and straight back, the way back a little closer: the return must not be
+        // skipped past its nearest point.
+        for (step, off) in [(1.0, 0.2), (0.7, 0.01), (1.3, 0.0)] {
+            let out = (0..40).map(|k| [-10.0 + step * k as f64, 0.3]);
+            let back = (0..40).map(|k| [-10.0 + step * (39 - k) as f64, 0.3 - off]);
+            let points: Vec<[f64; 2]> = out.chain(back).collect();
+            for x in [-3.0, 0.0, 0.35, 7.0] {
+                let near = [x, 0.0];
+                let d2 = |q: &[f64; 2]| (q[0] - near[0]).powi(2) + (q[1] - near[1]).powi(2);
+                let full =
+                    (0..points.len()).min_by(|&i, &j| d2(&points[i]).total_cmp(&d2(&points[j])));
+                assert_eq!(nearest_index(&points, near, max_step(&points)), full);
+            }
+        }
+        assert_eq!(nearest_index(&[], [0.0, 0.0], 1.0), None);
+    }
 
     #[test]
     fn two_lines_cross_at_the_analytic_point() {

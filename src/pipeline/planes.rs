@@ -11,6 +11,9 @@ pub(crate) struct PlaneCurves {
     pub(crate) curves: Vec<Curve>,
     /// Per curve, the index in `points` of each polyline vertex.
     vertices: Vec<Vec<usize>>,
+    /// Per curve, a bound on the step between consecutive dense points (the nearest-point
+    /// searches skip with it: [`crate::intersect::nearest_index`]).
+    max_step: Vec<f64>,
 }
 
 impl PlaneCurves {
@@ -31,11 +34,16 @@ impl PlaneCurves {
                     .collect()
             })
             .collect();
+        let max_step = curves
+            .iter()
+            .map(|c| crate::intersect::max_step(&c.points))
+            .collect();
         Self {
             frame,
             laser,
             curves,
             vertices,
+            max_step,
         }
     }
 
@@ -64,9 +72,12 @@ impl PlaneCurves {
     /// searched.
     pub(crate) fn dense_near(&self, u: [f64; 2], radius: f64) -> &[[f64; 2]] {
         match self.run_near(u, radius) {
-            Some((ci, lo, hi)) => {
-                crate::intersect::dense_run(&self.curves[ci].points[lo..=hi], u, radius)
-            }
+            Some((ci, lo, hi)) => crate::intersect::dense_run(
+                &self.curves[ci].points[lo..=hi],
+                u,
+                radius,
+                self.max_step[ci],
+            ),
             None => &[],
         }
     }
@@ -78,11 +89,9 @@ impl PlaneCurves {
             return 0;
         };
         let (start, end) = self.segment_span(ci, k);
-        let points = &self.curves[ci].points;
-        let d2 = |p: &[f64; 2]| (p[0] - u[0]).powi(2) + (p[1] - u[1]).powi(2);
-        (start..=end)
-            .min_by(|&i, &j| d2(&points[i]).total_cmp(&d2(&points[j])))
-            .unwrap_or(start) as u32
+        let points = &self.curves[ci].points[start..=end];
+        let nearest = crate::intersect::nearest_index(points, u, self.max_step[ci]);
+        (start + nearest.unwrap_or(0)) as u32
     }
 
     /// Curve index and the range of its dense points around `u` (see [`Self::dense_near`]).
