@@ -74,8 +74,8 @@
 //! the band above 80 % of the maximum is measured too; when it is much narrower than a
 //! Gaussian's, the width comes from it. Against a local background, a tile whose band
 //! is round rather than a band (a pattern in the laser's own hue spread over the
-//! window, `detect::MAX_BAND_ROUNDNESS`) or flat-topped where its own channel is not
-//! clipped (a patch of a surface in that hue, `detect::FLAT_RATIO`) is not searched.
+//! window, `detect::width::MAX_BAND_ROUNDNESS`) or flat-topped where its own channel is not
+//! clipped (a patch of a surface in that hue, `detect::width::FLAT_RATIO`) is not searched.
 //! A given `line_width_px` forces `σ = max(w / (2√3), 1)`, and `sigma_px` forces `σ`.
 //!
 //! # Thresholds
@@ -1121,7 +1121,7 @@ fn response_rgb<'a>(
                     lut.response(laser, dr, dg, db)
                 };
                 // Bit 1: the own channel clipped, which a flat top may be
-                // (`detect::FLAT_RATIO`).
+                // (`detect::width::FLAT_RATIO`).
                 *m = u8::from(other_laser) | (u8::from(local && lut.own_clipped(laser, f)) << 1);
                 *o = r as f32;
             }
