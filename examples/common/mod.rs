@@ -82,8 +82,15 @@ fn curves(
     }
     let (frames, _) = FrameSource::open(sim_dir)?;
     eprintln!("extracting {} frames", frames.len());
-    let extracted =
-        reconstruct::extract_frames(&frames, None, camera, config, &|_: &str, _, _| {})?;
+    let mut per_frame = Vec::new();
+    reconstruct::extract_frames(
+        &frames,
+        None,
+        camera,
+        config,
+        &|_: &str, _, _| {},
+        &mut |block| per_frame.extend(block),
+    )?;
     let _ = std::fs::remove_file(&log);
     let mut writer = CheckpointWriter::open(
         &cache,
@@ -91,7 +98,7 @@ fn curves(
         camera.height,
         Duration::from_secs(3600),
     )?;
-    for (i, curves) in extracted.per_frame.iter().enumerate() {
+    for (i, curves) in per_frame.iter().enumerate() {
         writer.append(&FrameCurves {
             index: i as u64,
             source_position: i as u64,
@@ -101,5 +108,5 @@ fn curves(
         })?;
     }
     writer.sync()?;
-    Ok(extracted.per_frame)
+    Ok(per_frame)
 }

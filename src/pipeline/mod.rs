@@ -434,8 +434,10 @@ pub fn reconstruct_curves(
     for curves in per_frame {
         scan.add_frame(curves);
     }
+    let add_s = t.elapsed().as_secs_f64();
     scan.refine_crossings(camera, config);
     let build_s = t.elapsed().as_secs_f64();
+    tracing::debug!(add_s, refine_s = build_s - add_s, "scan built");
     reconstruct_scan(scan, build_s, camera, config, source, scale, colour_source)
 }
 
@@ -459,6 +461,10 @@ pub fn reconstruct_scan(
     let predicted_px =
         scan.predicted_crossing_px(&curve_crossings, &faint, config, evidence.focal_px);
     times.intersect_s = build_s + t.elapsed().as_secs_f64();
+    tracing::debug!(
+        s = t.elapsed().as_secs_f64(),
+        "crossings checked and evidence made"
+    );
 
     let t = Instant::now();
     // Every frame is extracted by now (offline, and the daemon's final solve): the dense

@@ -18,7 +18,7 @@
 //! | `focal_scale`, `focal_scale_std`, `focal_px` | the (estimated) focal scale and the focal length it gives |
 //! | `scale_mode`, `scale_factor` | how the global scale was fixed, and the factor applied |
 //! | `points`, `triangulation` | the cloud, and what the other checks left out |
-//! | `seconds` | time per stage |
+//! | `seconds` | wall seconds per stage, in sequence; `reconstruct` runs the crossing search beside the extraction, so its `intersect_s` is only what the search adds after the last frame |
 //! | `warnings` | why the result is doubtful, as logged (empty when nothing is) |
 //! | `crossing_precision_px` | the extraction's predicted precision of the strong crossings (pixels; median of each refined crossing's deviation from its two local fits), or `null` |
 //! | `refused` | why no cloud was written although the planes were solved (the crossing check failed; `points` is then 0), or `null` |

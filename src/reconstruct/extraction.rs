@@ -16,11 +16,11 @@ use crate::config::Config;
 use crate::extract::rolling::{Policy, Rolling};
 use crate::extract::{Background, Curve, Extractor};
 
-/// The curves of every frame of a recording, as [`super::reconstruct_files`] extracts
-/// them.
+/// What extracting a recording gave besides its curves (those go to the caller's sink
+/// block by block, in frame order: [`extract_frames`]).
 pub struct Extracted {
-    /// Per frame (skipped frames have none), in frame order.
-    pub per_frame: Vec<Vec<Curve>>,
+    /// Frames extracted (skipped frames count, with no curves).
+    pub frames: usize,
     /// The first frames' background: the laser-off frame, or the rolling median's
     /// first version. Points take their colour from it.
     pub background: Arc<Background>,
@@ -77,13 +77,17 @@ type Block = Vec<(Vec<Curve>, Option<Arc<RgbImage>>)>;
 /// The background policy and extraction over a recording: the laser-off frame
 /// `background`, or else the rolling temporal median ([`crate::extract::rolling`]),
 /// taken block by block (a block is the frames of one version of the median), every
-/// frame of a block in parallel. Undecodable frames are skipped and counted.
+/// frame of a block in parallel. Undecodable frames are skipped and counted, with no
+/// curves. Each block's curves, one `Vec` per frame in frame order, go to `sink` as soon
+/// as the block is done, so that what consumes them (the crossing search) runs beside
+/// the next block's extraction.
 pub fn extract_frames(
     frames: &FrameSource,
     background: Option<&Path>,
     camera: &Camera,
     config: &Config,
     progress: &dyn Progress,
+    sink: &mut dyn FnMut(Vec<Vec<Curve>>),
 ) -> Result<Extracted, ReconstructError> {
     let t = Instant::now();
     let fixed = background
@@ -98,10 +102,10 @@ pub fn extract_frames(
     let warnings = Extractor::new(&config.extract, camera)?.warnings();
     let (n, done, skipped) = (frames.len(), AtomicUsize::new(0), Skipped::default());
     let mut pass = frames.pass(camera)?;
-    let (mut per_frame, mut first_bg, mut background_s) = (Vec::with_capacity(n), None, 0.0);
+    let (mut extracted, mut first_bg, mut background_s) = (0, None, 0.0);
     let mut v = 0;
     let extractors = Mutex::new(Vec::new());
-    while per_frame.len() < n {
+    while extracted < n {
         let wanted: Vec<usize> = (policy.start_of(v)..policy.end_of(v).min(n)).collect();
         let extract_one = |lent: &mut Lent, image: Option<&RgbImage>, bg: &Background| {
             let ex = lent
@@ -179,17 +183,21 @@ pub fn extract_frames(
             }
         };
         let ended = block.len() < wanted.len();
+        let mut curves_of_block = Vec::with_capacity(wanted.len());
         // (The warm-up's samples were offered before its block; offering again is a
         // no-op.)
         for (&i, (curves, sample)) in wanted.iter().zip(block) {
             rolling.offer(i, sample.as_ref());
-            per_frame.push(curves);
+            curves_of_block.push(curves);
         }
+        extracted += curves_of_block.len();
         rolling.forget_before(policy.end_of(v));
         if ended {
             // A video cut off: the frames it promised and did not hold have no curves.
-            per_frame.resize_with(n, Vec::new);
+            curves_of_block.resize_with(curves_of_block.len() + n - extracted, Vec::new);
+            extracted = n;
         }
+        sink(curves_of_block);
         v += 1;
     }
     let frames_skipped = skipped.count();
@@ -199,7 +207,7 @@ pub fn extract_frames(
     let background =
         first_bg.unwrap_or_else(|| Arc::new(Background::local(camera.width, camera.height)));
     Ok(Extracted {
-        per_frame,
+        frames: extracted,
         background,
         frames_skipped,
         background_s,
