@@ -404,25 +404,15 @@ fn start_spread_px(start: &super::Solution, evidence: &Evidence) -> f64 {
 /// The linear start (empty when it failed), its planes, and the estimates of both starts.
 type Starts = (super::Solution, Vec<Option<V3>>, Vec<Estimate>);
 
-/// The estimates from both starts of a scan: the linear start (the coplanarity null
-/// space; it sees every crossing, those of the other frames with the anchors too, since
-/// among the anchors alone a sparse scan's crossings may be too few for its global
-/// subset) and the fixed-centre start ([`super::centre`]: every plane through one centre
-/// of the hand), each refined at every shift its crosses leave open ([`refine_starts`]).
-/// Each start can settle a different part of a scan wrongly: the linear start extends
-/// planes from plane to plane, and a run of frames whose crossings barely turn them
-/// (stripes on one flat table, the other laser missing) drifts along the chain, which the
-/// joint estimate then keeps (a table top: 0.7 % of the points 4-10 % off, the cost 36 %
-/// above the truth's); the centre start knows nothing of a hand that walks. The
-/// estimator's [`score`] chooses among all. The centre start is refined on all the
-/// anchors unless it loses on every other one ([`super::screen`]). Also returns the
-/// linear start (empty when it failed) and its planes.
-fn two_starts(
+/// The linear start and its refinements ([`two_starts`]): the start, its planes in the
+/// anchors' evidence, its crossings' spread (px), the estimates refined from it, and why
+/// there are none (a start that found nothing to stand on is not an error here).
+fn linear_path(
     evidence: &Evidence,
     split: &AnchorSplit,
     params: &SolveParams,
     eparams: &EstimateParams,
-) -> Result<Starts, SolveError> {
+) -> Result<LinearPath, SolveError> {
     let sub = &split.evidence;
     let (start, planes, linear_error) = match linear_start(evidence, params) {
         Ok((start, planes)) => (start, split.planes_of(&planes), None),
@@ -447,7 +437,46 @@ fn two_starts(
             Err(e) => failure = Some(e),
         }
     }
-    match super::centre::fixed_centre_start(sub, &eparams.cancel) {
+    Ok((start, planes, sigma_px, estimates, failure))
+}
+
+/// What [`linear_path`] gives.
+type LinearPath = (
+    super::Solution,
+    Vec<Option<V3>>,
+    f64,
+    Vec<Estimate>,
+    Option<SolveError>,
+);
+
+/// The estimates from both starts of a scan: the linear start (the coplanarity null
+/// space; it sees every crossing, those of the other frames with the anchors too, since
+/// among the anchors alone a sparse scan's crossings may be too few for its global
+/// subset) and the fixed-centre start ([`super::centre`]: every plane through one centre
+/// of the hand), each refined at every shift its crosses leave open ([`refine_starts`]).
+/// Each start can settle a different part of a scan wrongly: the linear start extends
+/// planes from plane to plane, and a run of frames whose crossings barely turn them
+/// (stripes on one flat table, the other laser missing) drifts along the chain, which the
+/// joint estimate then keeps (a table top: 0.7 % of the points 4-10 % off, the cost 36 %
+/// above the truth's); the centre start knows nothing of a hand that walks. The
+/// estimator's [`score`] chooses among all. The centre start is refined on all the
+/// anchors unless it loses on every other one ([`super::screen`]). Also returns the
+/// linear start (empty when it failed) and its planes.
+fn two_starts(
+    evidence: &Evidence,
+    split: &AnchorSplit,
+    params: &SolveParams,
+    eparams: &EstimateParams,
+) -> Result<Starts, SolveError> {
+    let sub = &split.evidence;
+    // The centre start's search does not depend on the linear start: the two run side
+    // by side (each is partly serial), and only its screening waits for the other.
+    let (linear, centre) = rayon::join(
+        || linear_path(evidence, split, params, eparams),
+        || super::centre::fixed_centre_start(sub, &eparams.cancel),
+    );
+    let (start, planes, sigma_px, mut estimates, failure) = linear?;
+    match centre {
         Some((centre_planes, rms)) => {
             tracing::debug!(
                 "the centre start: crosses {:.2}° from orthogonal",
