@@ -404,51 +404,6 @@ fn start_spread_px(start: &super::Solution, evidence: &Evidence) -> f64 {
 /// The linear start (empty when it failed), its planes, and the estimates of both starts.
 type Starts = (super::Solution, Vec<Option<V3>>, Vec<Estimate>);
 
-/// The linear start and its refinements ([`two_starts`]): the start, its planes in the
-/// anchors' evidence, its crossings' spread (px), the estimates refined from it, and why
-/// there are none (a start that found nothing to stand on is not an error here).
-fn linear_path(
-    evidence: &Evidence,
-    split: &AnchorSplit,
-    params: &SolveParams,
-    eparams: &EstimateParams,
-) -> Result<LinearPath, SolveError> {
-    let sub = &split.evidence;
-    let (start, planes, linear_error) = match linear_start(evidence, params) {
-        Ok((start, planes)) => (start, split.planes_of(&planes), None),
-        // Nothing for the null space to stand on (a table top, a standing hand in a
-        // plain room): the centre start alone.
-        Err(e @ (SolveError::TooFewPlanes { .. } | SolveError::TooFewCrosses { .. })) => {
-            tracing::info!("the linear start found nothing to stand on ({e})");
-            (
-                super::Solution::empty(),
-                vec![None; sub.planes.len()],
-                Some(e),
-            )
-        }
-        Err(e) => return Err(e),
-    };
-    let sigma_px = start_spread_px(&start, evidence);
-    let mut estimates = Vec::new();
-    let mut failure = linear_error;
-    if failure.is_none() {
-        match refine_starts(sub, &planes, start.focal_scale, sigma_px, eparams) {
-            Ok(found) => estimates.extend(found),
-            Err(e) => failure = Some(e),
-        }
-    }
-    Ok((start, planes, sigma_px, estimates, failure))
-}
-
-/// What [`linear_path`] gives.
-type LinearPath = (
-    super::Solution,
-    Vec<Option<V3>>,
-    f64,
-    Vec<Estimate>,
-    Option<SolveError>,
-);
-
 /// The estimates from both starts of a scan: the linear start (the coplanarity null
 /// space; it sees every crossing, those of the other frames with the anchors too, since
 /// among the anchors alone a sparse scan's crossings may be too few for its global
@@ -469,20 +424,55 @@ fn two_starts(
     eparams: &EstimateParams,
 ) -> Result<Starts, SolveError> {
     let sub = &split.evidence;
-    // The centre start's search does not depend on the linear start: the two run side
-    // by side (each is partly serial), and only its screening waits for the other.
+    // The two starts do not depend on each other, nor do the linear start's refinement
+    // and the centre start's refinement on every other anchor (its screen): each pair
+    // runs side by side (each side is partly serial). Only the screen's verdict waits
+    // for the linear start's estimates. The answer is the one made in sequence.
     let (linear, centre) = rayon::join(
-        || linear_path(evidence, split, params, eparams),
+        || linear_start(evidence, params),
         || super::centre::fixed_centre_start(sub, &eparams.cancel),
     );
-    let (start, planes, sigma_px, mut estimates, failure) = linear?;
+    let (start, planes, linear_error) = match linear {
+        Ok((start, planes)) => (start, split.planes_of(&planes), None),
+        // Nothing for the null space to stand on (a table top, a standing hand in a
+        // plain room): the centre start alone.
+        Err(e @ (SolveError::TooFewPlanes { .. } | SolveError::TooFewCrosses { .. })) => {
+            tracing::info!("the linear start found nothing to stand on ({e})");
+            (
+                super::Solution::empty(),
+                vec![None; sub.planes.len()],
+                Some(e),
+            )
+        }
+        Err(e) => return Err(e),
+    };
+    let sigma_px = start_spread_px(&start, evidence);
+    let (refined, on_half) = rayon::join(
+        || {
+            linear_error
+                .is_none()
+                .then(|| refine_starts(sub, &planes, start.focal_scale, sigma_px, eparams))
+        },
+        || {
+            centre
+                .as_ref()
+                .and_then(|(c, _)| super::screen::on_half(sub, c, sigma_px, eparams))
+        },
+    );
+    let mut estimates = Vec::new();
+    let mut failure = linear_error;
+    match refined {
+        Some(Ok(found)) => estimates.extend(found),
+        Some(Err(e)) => failure = Some(e),
+        None => {}
+    }
     match centre {
         Some((centre_planes, rms)) => {
             tracing::debug!(
                 "the centre start: crosses {:.2}° from orthogonal",
                 rms.asin().to_degrees()
             );
-            if super::screen::loses_on_half(sub, &centre_planes, sigma_px, eparams, &estimates) {
+            if on_half.is_some_and(|h| h.loses_to(sub, &estimates, eparams)) {
                 tracing::debug!("the centre start loses on every other anchor: left out");
             } else {
                 match refine_starts(sub, &centre_planes, 1.0, sigma_px, eparams) {

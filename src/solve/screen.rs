@@ -1,6 +1,6 @@
 //! Whether a later start of the self-calibration is worth refining on all the anchors.
 //!
-//! Owns [`loses_on_half`]. The joint estimate's cost per step grows as the cube of the
+//! Owns [`on_half`] and [`OnHalf::loses_to`]. The joint estimate's cost per step grows as the cube of the
 //! anchors' unknowns (1,800 at 300 anchors: 42 ms a factorisation on two cores), and the
 //! fixed-centre start ([`super::centre`]) begins far from any minimum where the hand
 //! walks: on the 600-frame room its four rounds and two further shifts took about 150
@@ -35,7 +35,9 @@ const MIN_POSES: usize = 100;
 
 /// Whether the start `planes` (per plane of `sub`, refined at focal scale 1 from the
 /// spread `sigma_px`) scores worse than the best of `estimates` by [`AMBIGUOUS_CHI2`]
-/// on every other anchor of `sub` (see the module docs).
+/// on every other anchor of `sub` (see the module docs): [`on_half`], then
+/// [`OnHalf::loses_to`].
+#[cfg(test)]
 pub(super) fn loses_on_half(
     sub: &Evidence,
     planes: &[Option<V3>],
@@ -43,13 +45,29 @@ pub(super) fn loses_on_half(
     eparams: &EstimateParams,
     estimates: &[Estimate],
 ) -> bool {
+    on_half(sub, planes, sigma_px, eparams).is_some_and(|h| h.loses_to(sub, estimates, eparams))
+}
+
+/// A start refined on every other anchor, and its score there.
+pub(super) struct OnHalf {
+    half: AnchorSplit,
+    start_score: f64,
+}
+
+/// The start `planes` refined and scored on every other anchor of `sub`; `None` when
+/// `sub` has too few poses to screen ([`MIN_POSES`]) or the start does not refine
+/// there (then it is not screened). Needs nothing of the other starts, so the caller
+/// may run it beside them.
+pub(super) fn on_half(
+    sub: &Evidence,
+    planes: &[Option<V3>],
+    sigma_px: f64,
+    eparams: &EstimateParams,
+) -> Option<OnHalf> {
     let n = sub.num_poses();
     if n < MIN_POSES {
-        return false;
+        return None;
     }
-    let Some(k) = least_cost(sub, estimates, eparams) else {
-        return false;
-    };
     let mut marked = sub.clone();
     marked.anchors = (0..n).map(|p| p % 2 == 0).collect();
     let half = AnchorSplit::of(&marked);
@@ -58,38 +76,53 @@ pub(super) fn loses_on_half(
         Ok(found) => found,
         Err(e) => {
             tracing::debug!("the start did not refine on every other anchor: {e}");
-            return false;
+            return None;
         }
     };
-    let Some(start_score) = found
+    let start_score = found
         .iter()
         .map(|e| score(coarse, e, eparams))
-        .min_by(f64::total_cmp)
-    else {
-        return false;
-    };
-    let best = &estimates[k];
-    let refit = Start {
-        poses: restricted(best, coarse, &half),
-        focal_scale: best.focal_scale,
-        spreads: best.spreads,
-    };
-    let best_score = match estimate(coarse, &refit, eparams) {
-        Ok(mut est) => {
-            normalise_scale(coarse, &mut est);
-            score(coarse, &est, eparams)
-        }
-        Err(e) => {
-            tracing::debug!("the best estimate did not refine on every other anchor: {e}");
+        .min_by(f64::total_cmp)?;
+    Some(OnHalf { half, start_score })
+}
+
+impl OnHalf {
+    /// Whether the start scores worse on the half than the best of `estimates` (of all
+    /// the anchors of `sub`, the evidence [`on_half`] was given), refitted there, by [`AMBIGUOUS_CHI2`]; `false` without an
+    /// estimate, or when the best does not refine on the half.
+    pub(super) fn loses_to(
+        &self,
+        sub: &Evidence,
+        estimates: &[Estimate],
+        eparams: &EstimateParams,
+    ) -> bool {
+        let coarse = &self.half.evidence;
+        let Some(k) = least_cost(sub, estimates, eparams) else {
             return false;
-        }
-    };
-    let delta = start_score - best_score;
-    tracing::debug!(
-        delta,
-        "the start against the best estimate on every other anchor"
-    );
-    delta >= AMBIGUOUS_CHI2
+        };
+        let best = &estimates[k];
+        let refit = Start {
+            poses: restricted(best, coarse, &self.half),
+            focal_scale: best.focal_scale,
+            spreads: best.spreads,
+        };
+        let best_score = match estimate(coarse, &refit, eparams) {
+            Ok(mut est) => {
+                normalise_scale(coarse, &mut est);
+                score(coarse, &est, eparams)
+            }
+            Err(e) => {
+                tracing::debug!("the best estimate did not refine on every other anchor: {e}");
+                return false;
+            }
+        };
+        let delta = self.start_score - best_score;
+        tracing::debug!(
+            delta,
+            "the start against the best estimate on every other anchor"
+        );
+        delta >= AMBIGUOUS_CHI2
+    }
 }
 
 /// The poses of `est` (of all the anchors) on the anchors of `half` alone, their scale
