@@ -105,6 +105,7 @@
 //! `points_px`, `points` and `strength` are parallel; points whose undistortion fails are
 //! dropped from all three.
 
+mod activate;
 pub mod background;
 mod checks;
 pub mod colour;
@@ -326,9 +327,6 @@ impl ExtractParams {
 /// Rounds of following curves into the tiles ahead of their ends: each round reaches
 /// up to one tile further, so a faint tail is followed for up to this many tiles.
 const MAX_FOLLOW_ROUNDS: usize = 32;
-
-/// Points back from a curve's end over which its direction there is taken.
-const FOLLOW_DIRECTION_POINTS: usize = 8;
 
 /// Smoothing scales (px) of the automatic width: each takes the stripes up to
 /// `2√3 σ` wide (Steger's bar condition `σ ≥ w_half / √3`), so FWHM ≤ 3.5, 4.5, 5.9,
@@ -696,132 +694,6 @@ impl Extractor {
         self
     }
 
-    /// Marks in `self.grown` the inactive tiles of laser `laser` that lie ahead of an
-    /// end of one of `curves` (half a tile and one tile beyond it, along the curve's
-    /// direction over its last few points); whether there is any.
-    fn tiles_ahead(&mut self, laser: usize, curves: &[Curve]) -> bool {
-        self.grown.fill(false);
-        let det = &self.detector;
-        let (tile, tiles_x) = (det.tile as f32, det.tiles_x);
-        let (w, h) = (det.width as f32, det.height as f32);
-        let mut any = false;
-        for c in curves {
-            let n = c.points_px.len();
-            if n < 2 {
-                continue;
-            }
-            let back = FOLLOW_DIRECTION_POINTS.min(n - 1);
-            for (end, from) in [
-                (c.points_px[n - 1], c.points_px[n - 1 - back]),
-                (c.points_px[0], c.points_px[back]),
-            ] {
-                let (dx, dy) = (end[0] - from[0], end[1] - from[1]);
-                let len = (dx * dx + dy * dy).sqrt();
-                if len <= 0.0 {
-                    continue;
-                }
-                for step in [0.5, 1.0] {
-                    let (x, y) = (
-                        end[0] + dx / len * step * tile,
-                        end[1] + dy / len * step * tile,
-                    );
-                    if !(x >= 0.0 && y >= 0.0 && x < w && y < h) {
-                        continue;
-                    }
-                    let t = (y / tile) as usize * tiles_x + (x / tile) as usize;
-                    if !self.active[laser][t] && !self.grown[t] {
-                        self.grown[t] = true;
-                        any = true;
-                    }
-                }
-            }
-        }
-        any
-    }
-
-    /// Marks, per laser, the tiles holding a pixel of that laser's colour, and the
-    /// tiles holding a white pixel next to those (a saturated stripe core is white, and
-    /// a wide one fills a tile with no coloured fringe in it). A cheap byte-wise test
-    /// (any channel of the difference reaching `min_value`) runs over every tile-wide
-    /// chunk of every row; the look-up table only on chunks that pass.
-    fn activate_rgb(&mut self, frame: &RgbImage, background: &RgbImage, local: bool) {
-        for a in &mut self.active {
-            a.fill(false);
-        }
-        self.white.fill(false);
-        let (w, tile, tiles_x) = (
-            self.detector.width,
-            self.detector.tile,
-            self.detector.tiles_x,
-        );
-        let n_lasers = self.active.len() as u8;
-        let min_value = self.params.min_value;
-        let (fr, bg) = (frame.as_raw(), background.as_raw());
-        for (y, (frow, brow)) in fr.chunks(3 * w).zip(bg.chunks(3 * w)).enumerate() {
-            let trow = (y / tile) * tiles_x;
-            for (tx, (fc, bc)) in frow.chunks(3 * tile).zip(brow.chunks(3 * tile)).enumerate() {
-                let t = trow + tx;
-                if self.active.iter().all(|a| a[t]) {
-                    continue;
-                }
-                let strong = fc
-                    .iter()
-                    .zip(bc)
-                    .fold(0u8, |m, (f, b)| m.max(f.saturating_sub(*b)));
-                if strong < min_value {
-                    continue;
-                }
-                for (f, b) in fc.chunks_exact(3).zip(bc.chunks_exact(3)) {
-                    let (dr, dg, db) = (
-                        f[0].saturating_sub(b[0]),
-                        f[1].saturating_sub(b[1]),
-                        f[2].saturating_sub(b[2]),
-                    );
-                    if let Some(c) = self.lut.classify(dr, dg, db) {
-                        if c < n_lasers {
-                            if !local || purer_than_surface([dr, dg, db], b) {
-                                self.active[c as usize][t] = true;
-                            }
-                        } else if c == colour::Class::White as u8 {
-                            self.white[t] = true;
-                        } else {
-                            // A hue of no laser: a laser's stripe under a dim veil
-                            // of another colour ([`ColourLut::response`]).
-                            for k in 0..n_lasers {
-                                if self.lut.response(k, dr, dg, db).0 >= min_value {
-                                    self.active[k as usize][t] = true;
-                                }
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        // Stripes too faint for any pixel to reach `min_value`.
-        self.dark.lift.clear();
-        if self.params.faint_activation && !self.yuyv_frame && !local {
-            self.faint.activate(
-                fr,
-                bg,
-                (w, self.detector.height),
-                (tile, tiles_x),
-                self.lut.channels(),
-                &mut self.active,
-            );
-            if self.params.lift_darkened {
-                self.dark.cells_x = self.faint.darkening(&mut self.dark.lift);
-            }
-        }
-        let (tx_n, ty_n) = (tiles_x, self.detector.tiles_y);
-        for active in &mut self.active {
-            self.grown.copy_from_slice(active);
-            for (t, _) in self.white.iter().enumerate().filter(|(_, w)| **w) {
-                self.grown[t] |= tiles_near(t, 1, tx_n, ty_n).any(|u| active[u]);
-            }
-            std::mem::swap(active, &mut self.grown);
-        }
-    }
-
     /// Links the detector's points into `curves` of `laser`; with `glow`, each point
     /// moved off the glow step under it ([`glow_moves`]).
     fn link_into(&mut self, laser: u8, curves: &mut Vec<Curve>, glow: bool) {
@@ -1009,19 +881,6 @@ const NEGLIGIBLE_STEP: f32 = 0.02;
 /// together: one point's step is as noisy as a few pixels, while the glow beside a
 /// stripe changes over tens of pixels.
 const STEP_RUN: usize = 21;
-
-/// Whether the excess `d` over a local background is more saturated than the surface
-/// under it (`surface`, the local background's pixel), halfway from the surface's
-/// saturation to a pure hue. A laser's light is nearly monochrome, so what it adds is
-/// far purer than any lit surface; a surface's own texture, which a local background
-/// (unlike a laser-off frame) leaves in the excess, has the surface's colour.
-#[inline]
-fn purer_than_surface(d: [u8; 3], surface: &[u8]) -> bool {
-    let (_, s_excess) = colour::hue_saturation(d[0] as f32, d[1] as f32, d[2] as f32);
-    let (_, s_surface) =
-        colour::hue_saturation(surface[0] as f32, surface[1] as f32, surface[2] as f32);
-    s_excess >= 0.5 * (1.0 + s_surface)
-}
 
 /// The tiles within `r` tiles of tile `t` (itself included) on a `tiles_x` × `tiles_y`
 /// grid.
