@@ -116,6 +116,17 @@ fn folds(evidence: &Evidence, est: &Estimate, params: &EstimateParams) -> Vec<(u
             _ => runs.push((first, last, k)),
         }
     }
+    if tracing::enabled!(tracing::Level::DEBUG) {
+        let mut top: Vec<(f64, u32)> = kinks
+            .iter()
+            .enumerate()
+            .filter(|(_, k)| k.is_finite())
+            .map(|(t, &k)| (k, evidence.pose_frames[t + 1]))
+            .collect();
+        top.sort_by(|a, b| b.0.total_cmp(&a.0));
+        top.truncate(6);
+        tracing::debug!(?top, spreads = ?sp, "the path's largest kinks (in spreads, at frame)");
+    }
     runs.retain(|&(first, last, _)| last + 1 - first >= MIN_FOLD_SPAN);
     runs.sort_by(|a, b| b.2.total_cmp(&a.2));
     runs.into_iter()
