@@ -19,8 +19,6 @@ use crate::extract::{Background, Curve, Extractor};
 /// What extracting a recording gave besides its curves (those go to the caller's sink
 /// block by block, in frame order: [`extract_frames`]).
 pub struct Extracted {
-    /// Frames extracted (skipped frames count, with no curves).
-    pub frames: usize,
     /// The first frames' background: the laser-off frame, or the rolling median's
     /// first version. Points take their colour from it.
     pub background: Arc<Background>,
@@ -207,7 +205,6 @@ pub fn extract_frames(
     let background =
         first_bg.unwrap_or_else(|| Arc::new(Background::local(camera.width, camera.height)));
     Ok(Extracted {
-        frames: extracted,
         background,
         frames_skipped,
         background_s,
