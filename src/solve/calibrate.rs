@@ -453,9 +453,12 @@ fn two_starts(
                 .is_none()
                 .then(|| refine_starts(sub, &planes, start.focal_scale, sigma_px, eparams))
         },
+        // Without the linear start's estimates there is nothing to screen against
+        // (`OnHalf::loses_to` would say no): the screen is not refined for nothing.
         || {
             centre
                 .as_ref()
+                .filter(|_| linear_error.is_none())
                 .and_then(|(c, _)| super::screen::on_half(sub, c, sigma_px, eparams))
         },
     );
