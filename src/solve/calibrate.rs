@@ -39,6 +39,20 @@ pub enum PlaneVerdict {
     NoEvidence,
 }
 
+impl PlaneVerdict {
+    /// The verdict on a plane with `total` crossings evaluated, of which the estimate
+    /// weighs `bad` under one half.
+    pub fn of_counts(total: usize, bad: usize) -> Self {
+        if total == 0 {
+            Self::NoEvidence
+        } else if 2 * bad > total {
+            Self::Disputed
+        } else {
+            Self::Determined
+        }
+    }
+}
+
 /// Counts for the report.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct CalibrationSummary {
@@ -708,14 +722,6 @@ fn verdicts(evidence: &Evidence, est: &Estimate) -> Vec<PlaneVerdict> {
     }
     counts
         .iter()
-        .map(|&(total, bad)| {
-            if total == 0 {
-                PlaneVerdict::NoEvidence
-            } else if 2 * bad > total {
-                PlaneVerdict::Disputed
-            } else {
-                PlaneVerdict::Determined
-            }
-        })
+        .map(|&(total, bad)| PlaneVerdict::of_counts(total, bad))
         .collect()
 }

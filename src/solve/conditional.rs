@@ -121,16 +121,16 @@ impl AnchorSplit {
 /// One crossing of a fitted pose: its own laser, the other plane's pose (`None`: its own
 /// other laser) and laser, and where it is.
 #[derive(Clone, Copy)]
-struct Tie {
-    laser: usize,
-    other: Option<(usize, usize)>,
-    ray: Ray,
-    sigma: f64,
-    class: usize,
+pub(super) struct Tie {
+    pub laser: usize,
+    pub other: Option<(usize, usize)>,
+    pub ray: Ray,
+    pub sigma: f64,
+    pub class: usize,
 }
 
 /// A tie's term with the fitted pose first.
-fn term(
+pub(super) fn term(
     pose: &CrossPose,
     tie: &Tie,
     anchors: &[CrossPose],
@@ -384,12 +384,12 @@ fn starts(anchors: &[CrossPose], nearest: Option<CrossPose>, ties: &[Tie]) -> Ve
 }
 
 /// What one fitted pose contributes to the whole estimate.
-struct Fitted {
-    pose: CrossPose,
+pub(super) struct Fitted {
+    pub pose: CrossPose,
     cost: f64,
-    marginal: PoseMarginal,
-    scatter: PoseMarginal,
-    scatter_crossings: usize,
+    pub marginal: PoseMarginal,
+    pub scatter: PoseMarginal,
+    pub scatter_crossings: usize,
     /// Per tie: its class and its size standardised by its own
     /// redundancy, `|e| / √(1 − w h)` (pixels).
     standardised: Vec<(usize, f64)>,
@@ -397,7 +397,7 @@ struct Fitted {
 
 /// A pose fitted on `ties` against the jointly estimated poses `anchors` (in the order
 /// of their covariance `cov`), see the module docs; `None` without a tie or a start.
-fn fit_ties(
+pub(super) fn fit_ties(
     ev: &Evidence,
     anchors: &[CrossPose],
     cov: &Mat<f64>,

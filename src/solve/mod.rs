@@ -50,6 +50,7 @@ mod folds;
 pub mod init;
 pub mod nullspace;
 pub mod ortho;
+pub mod outside;
 pub mod pose;
 mod screen;
 pub mod seed;
