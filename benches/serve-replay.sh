@@ -45,8 +45,14 @@ rec = r.get("reconstruction") or {}
 print(f"frames in {r['frames_in']}, dropped by the ring {r['frames_dropped_ring']}, "
       f"by the driver {r['frames_dropped_driver']}, processed {r['frames_processed']}")
 l = r["latency"]
-print(f"latency capture -> socket: p50 {l['p50_ms']:.1f} ms, p95 {l['p95_ms']:.1f} ms, "
-      f"max {l['max_ms']:.1f} ms over {l['samples']} messages")
+print(f"latency of a frame's points, placed on arrival (capture -> socket): p50 {l['p50_ms']:.1f} ms, "
+      f"p95 {l['p95_ms']:.1f} ms, max {l['max_ms']:.1f} ms over {l['samples']} messages")
+e = r["epoch_latency"]
+print(f"age of an epoch's points (newest frame's capture -> socket): p50 {e['p50_ms']:.0f} ms, "
+      f"p95 {e['p95_ms']:.0f} ms over {e['samples']} messages")
+s = r["live_solver"]
+print(f"frames placed on arrival: {s['frames_placed_on_arrival']} of {r['frames_processed']}, "
+      f"late (from an epoch's backlog): {s['frames_placed_late']}")
 f = r["solver_frame"]
 print(f"solver thread per frame: p50 {f['p50_ms']:.1f} ms, p95 {f['p95_ms']:.1f} ms, max {f['max_ms']:.1f} ms")
 print(f"CPU {r['cpu_seconds']:.1f} s over {r['wall_seconds']:.1f} s wall = "

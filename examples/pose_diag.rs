@@ -39,7 +39,7 @@ fn main() -> anyhow::Result<()> {
         scan.add_frame(curves);
     }
     scan.refine_crossings(&run.camera, &run.config);
-    let (ev, _) = scan.solve_input(&run.camera, &run.config);
+    let (ev, _) = scan.snapshot().solve_input(&run.camera, &run.config);
     let t = std::time::Instant::now();
     let cal = if std::env::var("PLANES").is_ok_and(|v| v == "start") {
         let start: Vec<Option<V3>> = ev

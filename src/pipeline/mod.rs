@@ -26,10 +26,12 @@
 pub mod anchors;
 mod live;
 pub mod planes;
+mod record;
 mod refusal;
 pub mod report;
 pub mod triangulate;
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use image::RgbImage;
@@ -41,12 +43,14 @@ use crate::cloud::{self, ScaleMode};
 use crate::config::Config;
 use crate::extract::Curve;
 use crate::intersect::{Crossing, SegmentIndex};
-use crate::solve::evidence::{CrossingClass, Evidence, Observation, PlaneSlot, RayModel};
+
 use crate::solve::{self, Calibration};
 
 pub(crate) use refusal::{refusal, Fit};
 
+pub(crate) use live::Placing;
 pub(crate) use planes::PlaneCurves;
+pub use record::Record;
 pub use report::{ReconstructReport, Reconstruction, StageTimes, REPORT_VERSION};
 
 /// Where the planes come from.
@@ -84,29 +88,16 @@ pub(crate) fn is_faint(curve: &Curve, min_strength: f32) -> bool {
     !curve.strength.is_empty() && !curve.strength.iter().any(|&s| s >= min_strength)
 }
 
-/// A scan between extraction and the cloud.
+/// A scan between extraction and the cloud: what it has seen ([`Record`]) and the
+/// indices that find each new curve's crossings.
 pub struct Scan {
-    frames: usize,
-    frames_with_curves: usize,
-    planes: Vec<PlaneCurves>,
-    /// Per curve (global id, in plane order): its plane and its index in that plane.
-    curve_plane: Vec<u32>,
-    curve_local: Vec<u32>,
+    record: Record,
     /// Every curve so far, and the anchors' curves only.
     index: SegmentIndex,
     anchor_index: SegmentIndex,
-    anchors: anchors::Anchors,
     /// The index cell (normalised units) and least crossing sine, to rebuild the anchors'.
     index_cell: f64,
     min_sin_angle: f64,
-    /// Per plane, the global id of its first curve.
-    plane_first_curve: Vec<u32>,
-    /// Crossings of planes (`a`, `b` are plane ids) and the curves they are of.
-    crossings: Vec<Crossing>,
-    curve_ids: Vec<[u32; 2]>,
-    /// Per crossing, the predicted deviation of its position (normalised units) from
-    /// its refinement ([`crate::intersect::RefinedCrossing::sigma`]; 0: not refined).
-    crossing_sigma: Vec<f64>,
     /// Crossings before this one are refined on the dense points.
     refined: usize,
     fresh: Vec<Crossing>,
@@ -124,60 +115,87 @@ impl Scan {
             / crate::intersect::IMAGE_CELLS
             / camera.fx.max(camera.fy);
         Self {
-            frames: 0,
-            frames_with_curves: 0,
-            planes: Vec::new(),
-            curve_plane: Vec::new(),
-            curve_local: Vec::new(),
+            record: Record {
+                frames: 0,
+                frames_with_curves: 0,
+                planes: Vec::new(),
+                curve_plane: Vec::new(),
+                curve_local: Vec::new(),
+                anchors: anchors::Anchors::new(config.solve.max_anchor_poses),
+                plane_first_curve: Vec::new(),
+                frame_first_plane: Vec::new(),
+                frame_first_crossing: Vec::new(),
+                crossings: Vec::new(),
+                curve_ids: Vec::new(),
+                crossing_sigma: Vec::new(),
+            },
             anchor_index: index.clone(),
             index,
-            anchors: anchors::Anchors::new(config.solve.max_anchor_poses),
             index_cell,
             min_sin_angle: config.solve.min_sin_angle,
-            plane_first_curve: Vec::new(),
-            crossings: Vec::new(),
-            curve_ids: Vec::new(),
-            crossing_sigma: Vec::new(),
             refined: 0,
             fresh: Vec::new(),
         }
     }
 
     pub fn frames(&self) -> usize {
-        self.frames
+        self.record.frames
     }
 
-    pub(crate) fn planes(&self) -> &[PlaneCurves] {
-        &self.planes
+    pub(crate) fn planes(&self) -> &[Arc<PlaneCurves>] {
+        &self.record.planes
     }
 
     pub fn num_curves(&self) -> usize {
-        self.curve_plane.len()
+        self.record.curve_plane.len()
     }
 
     pub fn num_crossings(&self) -> usize {
-        self.crossings.len()
+        self.record.crossings.len()
+    }
+
+    /// What the scan has seen so far.
+    pub fn record(&self) -> &Record {
+        &self.record
+    }
+
+    /// What the scan has seen so far, for a live epoch's own thread: its planes are
+    /// shared, the rest (crossings, per curve ids) copied.
+    pub fn snapshot(&self) -> Record {
+        debug_assert_eq!(
+            self.refined,
+            self.record.crossings.len(),
+            "unrefined crossings"
+        );
+        self.record.clone()
     }
 
     /// Adds the next frame's curves: its planes, and their crossings (see the module
     /// docs; not yet refined).
     pub fn add_frame(&mut self, curves: Vec<Curve>) {
-        let frame = self.frames as u32;
-        self.frames += 1;
-        self.frames_with_curves += usize::from(!curves.is_empty());
-        let admission = self.anchors.next_frame(!curves.is_empty());
+        let frame = self.record.frames as u32;
+        self.record.frames += 1;
+        let record = &mut self.record;
+        record.frame_first_plane.push(record.planes.len() as u32);
+        record
+            .frame_first_crossing
+            .push(record.crossings.len() as u32);
+        self.record.frames_with_curves += usize::from(!curves.is_empty());
+        let admission = self.record.anchors.next_frame(!curves.is_empty());
         if admission.thinned {
             self.rebuild_anchor_index();
         }
         // A frame's own two lasers cross each other, at the cross's centre.
         let mut own = SegmentIndex::with_cell_size(self.index_cell, self.min_sin_angle);
         for plane in PlaneCurves::of_frame(frame, curves) {
-            let id = self.planes.len() as u32;
-            self.plane_first_curve.push(self.curve_plane.len() as u32);
+            let id = self.record.planes.len() as u32;
+            self.record
+                .plane_first_curve
+                .push(self.record.curve_plane.len() as u32);
             for (local, curve) in plane.curves.iter().enumerate() {
-                let cid = self.curve_plane.len() as u32;
-                self.curve_plane.push(id);
-                self.curve_local.push(local as u32);
+                let cid = self.record.curve_plane.len() as u32;
+                self.record.curve_plane.push(id);
+                self.record.curve_local.push(local as u32);
                 self.fresh.clear();
                 if admission.anchor {
                     self.index
@@ -191,26 +209,29 @@ impl Scan {
                 }
                 for c in &self.fresh {
                     let (pa, pb) = (
-                        self.curve_plane[c.a as usize],
-                        self.curve_plane[c.b as usize],
+                        self.record.curve_plane[c.a as usize],
+                        self.record.curve_plane[c.b as usize],
                     );
                     if pa != pb {
-                        self.crossings.push(Crossing { a: pa, b: pb, ..*c });
-                        self.curve_ids.push([c.a, c.b]);
+                        self.record.crossings.push(Crossing { a: pa, b: pb, ..*c });
+                        self.record.curve_ids.push([c.a, c.b]);
                     }
                 }
             }
-            self.planes.push(plane);
+            self.record.planes.push(Arc::new(plane));
         }
     }
 
     /// The anchors' index anew, after the schedule thinned them.
     fn rebuild_anchor_index(&mut self) {
         let mut index = SegmentIndex::with_cell_size(self.index_cell, self.min_sin_angle);
-        for (p, plane) in self.planes.iter().enumerate() {
-            if self.anchors.is_anchor(plane.frame) {
+        for (p, plane) in self.record.planes.iter().enumerate() {
+            if self.record.anchors.is_anchor(plane.frame) {
                 for (local, curve) in plane.curves.iter().enumerate() {
-                    index.add(self.plane_first_curve[p] + local as u32, &curve.polyline);
+                    index.add(
+                        self.record.plane_first_curve[p] + local as u32,
+                        &curve.polyline,
+                    );
                 }
             }
         }
@@ -221,12 +242,14 @@ impl Scan {
     /// (`[intersect] refine_radius_px`), in parallel.
     pub fn refine_crossings(&mut self, camera: &Camera, config: &Config) {
         let radius = config.intersect.refine_radius_px / camera.fx.max(camera.fy);
-        let planes = &self.planes;
-        self.crossing_sigma.resize(self.crossings.len(), 0.0);
+        let planes = &self.record.planes;
+        self.record
+            .crossing_sigma
+            .resize(self.record.crossings.len(), 0.0);
         if radius > 0.0 {
-            self.crossings[self.refined..]
+            self.record.crossings[self.refined..]
                 .par_iter_mut()
-                .zip(self.crossing_sigma[self.refined..].par_iter_mut())
+                .zip(self.record.crossing_sigma[self.refined..].par_iter_mut())
                 .for_each(|(c, sigma)| {
                     let a = planes[c.a as usize].dense_near(c.u, radius);
                     let b = planes[c.b as usize].dense_near(c.u, radius);
@@ -236,184 +259,18 @@ impl Scan {
                     }
                 });
         }
-        self.refined = self.crossings.len();
-    }
-
-    fn curve(&self, cid: u32) -> &Curve {
-        let (p, local) = (
-            self.curve_plane[cid as usize],
-            self.curve_local[cid as usize],
-        );
-        &self.planes[p as usize].curves[local as usize]
-    }
-
-    /// The crossings of curves, with each curve's point nearest the crossing and its
-    /// ridge strength there, as the triangulation's crossing check needs them.
-    fn curve_crossings(&self) -> Vec<cloud::CurveCrossing> {
-        (0..self.crossings.len())
-            .into_par_iter()
-            .map(|k| self.curve_crossing(k))
-            .collect()
-    }
-
-    /// Crossing `k` as the crossing check takes it.
-    fn curve_crossing(&self, k: usize) -> cloud::CurveCrossing {
-        let (c, [a, b]) = (&self.crossings[k], self.curve_ids[k]);
-        let near = |cid: u32| {
-            let (p, local) = (
-                self.curve_plane[cid as usize],
-                self.curve_local[cid as usize],
-            );
-            self.planes[p as usize].nearest_point(local as usize, c.u)
-        };
-        let at = [near(a), near(b)];
-        let strength = |cid: u32, i: u32| {
-            self.curve(cid)
-                .strength
-                .get(i as usize)
-                .copied()
-                .unwrap_or(0.0)
-        };
-        cloud::CurveCrossing {
-            a,
-            b,
-            u: c.u,
-            at,
-            strength: [strength(a, at[0]), strength(b, at[1])],
-        }
-    }
-
-    /// The class of a crossing (see [`Self::evidence`]).
-    fn class_of(cc: &cloud::CurveCrossing, faint: [bool; 2], config: &Config) -> CrossingClass {
-        let min_local = config.solve.min_crossing_strength;
-        let strong =
-            !faint[0] && !faint[1] && cc.strength.iter().all(|s| *s >= min_local || *s == 0.0);
-        if strong {
-            CrossingClass::Strong
-        } else {
-            CrossingClass::Faint
-        }
-    }
-
-    /// The precision the extraction predicts for the strong crossings, pixels: the median
-    /// over the crossings above `solve.min_sin_angle` of class strong ([`Self::class_of`])
-    /// of each refined crossing's predicted deviation
-    /// ([`crate::intersect::refine_crossing`]). The estimator's evidence keeps only those
-    /// tied to an anchor of them; the prediction takes all, since it is a property of the
-    /// curves. `None` without refined strong crossings.
-    fn predicted_crossing_px(
-        &self,
-        curve_crossings: &[cloud::CurveCrossing],
-        faint: &[bool],
-        config: &Config,
-        focal_px: f64,
-    ) -> Option<f64> {
-        let sigmas: Vec<f64> = self
-            .crossings
-            .iter()
-            .zip(curve_crossings)
-            .zip(&self.crossing_sigma)
-            .filter(|((c, cc), sigma)| {
-                **sigma > 0.0
-                    && c.sin_angle >= config.solve.min_sin_angle
-                    && Self::class_of(cc, [faint[cc.a as usize], faint[cc.b as usize]], config)
-                        == CrossingClass::Strong
-            })
-            .map(|(_, sigma)| sigma * focal_px)
-            .collect();
-        crate::solve::median(sigmas)
-    }
-
-    /// Per curve, whether it is faint: no point reaches `solve.min_curve_strength`.
-    fn faint_curves(&self, config: &Config) -> Vec<bool> {
-        self.planes
-            .iter()
-            .flat_map(|p| &p.curves)
-            .map(|c| is_faint(c, config.solve.min_curve_strength))
-            .collect()
-    }
-
-    /// The estimator's evidence: a pose per frame with a crossing, its planes, and every
-    /// crossing at an angle above `solve.min_sin_angle`, of class strong where both
-    /// curves are strong (`min_curve_strength`) and both ridges at least
-    /// `min_crossing_strength` there, faint otherwise. Also returns, per plane, its index
-    /// in the evidence (`None` for planes without a crossing).
-    fn evidence(
-        &self,
-        camera: &Camera,
-        config: &Config,
-        curve_crossings: &[cloud::CurveCrossing],
-        faint: &[bool],
-    ) -> (Evidence, Vec<Option<u32>>) {
-        let frame_of = |plane: u32| self.planes[plane as usize].frame;
-        // A crossing of two frames neither of which is an anchor (any more) ties two
-        // poses that are each fitted on their own: it is left to the crossing check.
-        let tied = |c: &Crossing| {
-            let (fa, fb) = (frame_of(c.a), frame_of(c.b));
-            fa == fb || self.anchors.is_anchor(fa) || self.anchors.is_anchor(fb)
-        };
-        let mut used = vec![false; self.planes.len()];
-        for c in &self.crossings {
-            if c.sin_angle >= config.solve.min_sin_angle && tied(c) {
-                used[c.a as usize] = true;
-                used[c.b as usize] = true;
-            }
-        }
-        let mut pose_of_frame: Vec<Option<u32>> = vec![None; self.frames];
-        let mut pose_frames = Vec::new();
-        let mut slots = Vec::new();
-        let mut plane_index = vec![None; self.planes.len()];
-        for (i, p) in self.planes.iter().enumerate() {
-            if !used[i] {
-                continue;
-            }
-            let pose = *pose_of_frame[p.frame as usize].get_or_insert_with(|| {
-                pose_frames.push(p.frame);
-                (pose_frames.len() - 1) as u32
-            });
-            plane_index[i] = Some(slots.len() as u32);
-            slots.push(PlaneSlot {
-                pose,
-                laser: p.laser,
-            });
-        }
-        let crossings = self
-            .crossings
-            .iter()
-            .zip(curve_crossings)
-            .filter(|(c, _)| c.sin_angle >= config.solve.min_sin_angle && tied(c))
-            .filter_map(|(c, cc)| {
-                Some(Observation {
-                    a: plane_index[c.a as usize]?,
-                    b: plane_index[c.b as usize]?,
-                    u: c.u,
-                    sin_angle: c.sin_angle,
-                    class: Self::class_of(cc, [faint[cc.a as usize], faint[cc.b as usize]], config),
-                })
-            })
-            .collect();
-        let anchors = pose_frames
-            .iter()
-            .map(|&f| self.anchors.is_anchor(f))
-            .collect();
-        let evidence = Evidence {
-            anchors,
-            pose_frames,
-            planes: slots,
-            crossings,
-            focal_px: camera.fx.max(camera.fy),
-            rays: RayModel::new(camera.distortion),
-        };
-        (evidence, plane_index)
+        self.refined = self.record.crossings.len();
     }
 }
 
 /// The planes of a scan as triangulation takes them.
 pub(crate) enum Planes<'a> {
-    /// Self-calibrated: `plane_index[i]` is plane `i`'s index in the evidence.
+    /// Self-calibrated: `plane_index[i]` is plane `i`'s index in the evidence; the
+    /// planes of a frame placed against the calibration after it, if any, from `placed`.
     Calibrated {
         calibration: &'a Calibration,
         plane_index: &'a [Option<u32>],
+        placed: Option<live::Placed<'a>>,
     },
     /// Given per plane, exactly (on the rays of the camera file).
     Known(Vec<Option<Vector3<f64>>>),
@@ -452,14 +309,15 @@ pub fn reconstruct_scan(
     scale: &ScaleMode,
     colour_source: Option<&RgbImage>,
 ) -> Result<Reconstruction, PipelineError> {
+    let record = scan.record;
     let mut times = StageTimes::default();
-    let frames_with_laser = scan.frames_with_curves;
+    let frames_with_laser = record.frames_with_curves;
     let t = Instant::now();
-    let curve_crossings = scan.curve_crossings();
-    let faint = scan.faint_curves(config);
-    let (evidence, plane_index) = scan.evidence(camera, config, &curve_crossings, &faint);
+    let curve_crossings = record.curve_crossings();
+    let faint = record.faint_curves(config);
+    let (evidence, plane_index) = record.evidence(camera, config, &curve_crossings, &faint);
     let predicted_px =
-        scan.predicted_crossing_px(&curve_crossings, &faint, config, evidence.focal_px);
+        record.predicted_crossing_px(&curve_crossings, &faint, config, evidence.focal_px);
     times.intersect_s = build_s + t.elapsed().as_secs_f64();
     tracing::debug!(
         s = t.elapsed().as_secs_f64(),
@@ -496,7 +354,8 @@ pub fn reconstruct_scan(
     };
     let planes = match (&calibration, source) {
         (_, PlaneSource::Known(known)) => Planes::Known(
-            scan.planes()
+            record
+                .planes()
                 .iter()
                 .map(|p| {
                     known
@@ -509,6 +368,7 @@ pub fn reconstruct_scan(
             Some(calibration) => Planes::Calibrated {
                 calibration,
                 plane_index: &plane_index,
+                placed: None,
             },
             None => Planes::Known(Vec::new()),
         },
@@ -517,8 +377,9 @@ pub fn reconstruct_scan(
 
     let t = Instant::now();
     let mut out = triangulate::cloud(
-        &scan,
+        &record,
         &planes,
+        0..record.planes.len(),
         &curve_crossings,
         &faint,
         colour_source,
@@ -535,7 +396,7 @@ pub fn reconstruct_scan(
         tracing::warn!("{w}");
     }
     let mut rec = report::assemble(
-        &scan,
+        &record,
         &evidence,
         calibration,
         out,

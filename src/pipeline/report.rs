@@ -27,7 +27,7 @@ use nalgebra::Vector3;
 use serde::Serialize;
 
 use super::triangulate::CloudOut;
-use super::Scan;
+use super::Record;
 use crate::camera::Camera;
 use crate::cloud::{ScaleMode, TriangulateStats};
 use crate::ply::Cloud;
@@ -95,7 +95,7 @@ pub struct Reconstruction {
 /// The report and the reconstruction from the stages' outputs.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn assemble(
-    scan: &Scan,
+    scan: &Record,
     evidence: &Evidence,
     calibration: Option<&Calibration>,
     out: CloudOut,

@@ -16,7 +16,7 @@ use image::RgbImage;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::{Planes, Scan};
+use super::{Planes, Record};
 use crate::cloud::{self, CurvePoints, TriangulateStats};
 use crate::config::Config;
 use crate::ply::Cloud;
@@ -56,8 +56,11 @@ impl PlaneRule<'_> {
             Planes::Calibrated {
                 calibration,
                 plane_index,
-                ..
-            } => calibration.plane(plane_index[i]? as usize),
+                placed,
+            } => match placed.as_ref().and_then(|p| p.laser_of(i)) {
+                Some((fit, laser)) => fit.plane(laser),
+                None => calibration.plane((*plane_index.get(i)?)? as usize),
+            },
         }
     }
 
@@ -93,19 +96,24 @@ impl PlaneRule<'_> {
             Planes::Calibrated {
                 calibration,
                 plane_index,
-                ..
-            } => match plane_index[i] {
-                Some(k) => calibration.depth_sigma(k as usize, ray),
-                None => f64::INFINITY,
+                placed,
+            } => match placed.as_ref().and_then(|p| p.laser_of(i)) {
+                Some((fit, laser)) => fit.depth_sigma(laser, ray),
+                None => match plane_index.get(i).copied().flatten() {
+                    Some(k) => calibration.depth_sigma(k as usize, ray),
+                    None => f64::INFINITY,
+                },
             },
         }
     }
 }
 
-/// The cloud of `scan` on `planes` (see the module docs).
+/// The cloud of `scan`'s planes `only` on `planes` (see the module docs), its
+/// crossing check on `curve_crossings`.
 pub(crate) fn cloud(
-    scan: &Scan,
+    scan: &Record,
     planes: &Planes,
+    only: std::ops::Range<usize>,
     curve_crossings: &[cloud::CurveCrossing],
     faint: &[bool],
     colour_source: Option<&RgbImage>,
@@ -145,11 +153,10 @@ pub(crate) fn cloud(
         next += p.curves.len();
     }
     let max_sigma = params.max_depth_sigma;
-    let parts: Vec<(Cloud, Vec<[f32; 2]>, TriangulateStats, usize)> = scan
-        .planes()
+    let parts: Vec<(Cloud, Vec<[f32; 2]>, TriangulateStats, usize)> = scan.planes()[only.clone()]
         .par_iter()
-        .enumerate()
-        .map(|(id, plane)| {
+        .zip(only)
+        .map(|(plane, id)| {
             let mut part = Cloud {
                 colors: Some(Vec::new()),
                 frames: Some(Vec::new()),

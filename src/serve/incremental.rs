@@ -5,18 +5,23 @@
 //! - Each new frame's curves go into the scan at once: their crossings with the anchors'
 //!   curves (and an anchor's with every curve) are found and refined.
 //! - An epoch is the estimator's answer on the evidence so far:
-//!   [`crate::solve::calibrate_until`] on the scan's evidence, on a background thread
-//!   named `solver-epoch`, warm-started from the last epoch's planes (the frames since
-//!   placed by their crossings with those), and the offline triangulation of every
-//!   plane it determines (the same uncertainty rule, and the same crossing check: an
-//!   epoch whose planes most curves contradict is not adopted). The first
+//!   [`crate::solve::calibrate_until`] on the scan's evidence, warm-started from the last
+//!   epoch's planes (the frames since placed by their crossings with those), and the
+//!   offline triangulation of every plane it determines (the same uncertainty rule, and
+//!   the same crossing check: an epoch whose planes most curves contradict is not
+//!   adopted). All of it runs on a thread of its own ([`super::epoch`]), on a snapshot
+//!   of the scan taken when it starts. The first
 //!   is tried once `min_planes_first_solve` planes have arrived, the next whenever the
 //!   planes have grown by `solve_growth`; a failed one is retried at the same growth.
-//! - Between epochs no points go out: a frame's points come with the next epoch. (The
-//!   first attempt, fitting each new frame against the epoch's anchors as `reconstruct`
-//!   fits every frame that is no anchor, placed a few frames of a synthetic sweep 7-9 %
-//!   off while the same frames come out right offline; until that is understood the live
-//!   cloud grows by epochs only.)
+//! - Between epochs, each new frame is placed against the current epoch as it arrives:
+//!   its pose fitted from its crossings with the epoch's joint poses exactly as the
+//!   offline estimate fits every frame outside its anchors, with the joint poses'
+//!   uncertainty propagated into it ([`crate::solve::outside`]), and its points
+//!   triangulated with the same depth rule and crossing check. A frame its crossings do
+//!   not fix gives no points until an epoch holds it. The frames that arrived while an
+//!   epoch was made are placed against it after it is adopted, a few per frame.
+//!   (An earlier attempt fitted each plane on its own against the anchors' planes, with
+//!   no uncertainty of theirs, and placed a few frames of a synthetic sweep 7-9 % off.)
 //! - At the end, [`Incremental::finish`] runs the offline pipeline's final stages on the
 //!   same scan ([`crate::pipeline::reconstruct_scan`]), so the final cloud is exactly
 //!   what `crossline reconstruct` makes of the same curves, whatever the order and
@@ -24,9 +29,8 @@
 
 use std::sync::Arc;
 
-use crossbeam_channel::{bounded, Receiver, TryRecvError};
+use crossbeam_channel::{Receiver, TryRecvError};
 use image::RgbImage;
-use nalgebra::Vector3;
 
 use crate::camera::Camera;
 use crate::cloud::{self, ScaleMode};
@@ -34,8 +38,9 @@ use crate::config::Config;
 use crate::extract::Curve;
 use crate::pipeline::{self, PlaneSource, Reconstruction, Scan};
 use crate::reconstruct::ReconstructError;
-use crate::solve::{self, Calibration, SolveError};
+use crate::solve::{self, SolveError};
 
+use super::epoch::{self, Answer, Estimate, NotAdopted};
 use super::stream::{self, EpochReason, Point};
 
 /// How often the live solver re-solves globally.
@@ -51,26 +56,47 @@ pub struct IncrementalParams {
 /// What the live solver wants sent.
 #[derive(Debug, Default)]
 pub struct Output {
-    /// A new epoch begins (its points follow in `points`).
+    /// A new epoch begins (its points follow in `batches`).
     pub epoch: Option<(u32, EpochReason)>,
+    /// Points to send, in order: an adopted epoch's cloud, then frames placed against
+    /// the current epoch.
+    pub batches: Vec<Batch>,
+}
+
+/// Points for the stream.
+#[derive(Debug)]
+pub struct Batch {
     pub points: Vec<Point>,
     /// Capture time of the newest frame these points come from.
     pub captured_nanos: u64,
+    pub kind: BatchKind,
 }
 
-/// The estimate an epoch is built on.
-struct Epoch {
-    calibration: Arc<Calibration>,
-    /// Per plane of the scan when it was made, its index in the calibration's evidence.
-    plane_index: Vec<Option<u32>>,
+/// Where a batch's points come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BatchKind {
+    /// An epoch's cloud: every frame up to the snapshot it was made on.
+    Epoch,
+    /// The frame just added, placed against the current epoch on arrival.
+    Arrival,
+    /// A frame that arrived while the current epoch was made, placed against it when
+    /// it was adopted.
+    Backlog,
 }
 
-/// A background solve: its answer, and the evidence's plane index. Dropped (adopted,
-/// or superseded by the final solve), it stops the solve if still running: on a small
-/// machine the final solve must not share the CPU with an epoch nobody will read.
+/// Frames of an adopted epoch's backlog placed per frame added: at 30 frames a second,
+/// a backlog of 10 s is placed in about 3 s, and no frame waits long for it.
+const BACKLOG_PER_FRAME: usize = 3;
+
+/// An epoch being made. Dropped (adopted, or superseded by the final solve), it stops
+/// the epoch if still running: on a small machine the final solve must not share the CPU
+/// with an epoch nobody will read.
 struct Pending {
-    answer: Receiver<Result<Calibration, SolveError>>,
-    plane_index: Vec<Option<u32>>,
+    answer: Receiver<Result<Answer, NotAdopted>>,
+    /// Planes in the snapshot it is made of.
+    planes: usize,
+    /// Capture time of the snapshot's newest frame: its points are no newer.
+    captured_nanos: u64,
     cancel: solve::Cancel,
 }
 
@@ -100,9 +126,14 @@ pub struct SolverCounts {
     pub crossings_s: f64,
     /// Of `crossings_s`, refining crossings on the dense points.
     pub refine_s: f64,
-    pub extend_s: f64,
-    pub triangulate_s: f64,
+    /// Placing frames against the current epoch, and adopting epochs.
+    pub place_s: f64,
     pub adopt_s: f64,
+    /// Frames placed against the current epoch on arrival that gave points.
+    pub frames_placed_on_arrival: u64,
+    /// Frames placed from an adopted epoch's backlog that gave points (a frame may be
+    /// placed against several epochs).
+    pub frames_placed_late: u64,
 }
 
 pub struct Incremental {
@@ -113,7 +144,11 @@ pub struct Incremental {
     colour: Option<Arc<RgbImage>>,
     scan: Scan,
     epoch: u32,
-    current: Option<Epoch>,
+    current: Option<Arc<Estimate>>,
+    /// Frames that arrived while the current epoch was made, still to place against it.
+    backlog: std::ops::Range<usize>,
+    /// Per frame, its capture time.
+    captured: Vec<u64>,
     pending: Option<Pending>,
     next_solve_at: usize,
     /// The last epoch's focal estimate was too uncertain (warned once when it turns so).
@@ -138,6 +173,8 @@ impl Incremental {
             colour: None,
             epoch: 0,
             current: None,
+            backlog: 0..0,
+            captured: Vec::new(),
             pending: None,
             focal_uncertain: false,
             counts: SolverCounts::default(),
@@ -166,64 +203,81 @@ impl Incremental {
         self.counts.crossings = self.scan.num_crossings() as u64;
         self.counts.crossings_s += t.elapsed().as_secs_f64();
 
-        let mut out = Output {
-            captured_nanos,
-            ..Default::default()
-        };
+        self.captured.push(captured_nanos);
+        let mut out = Output::default();
         let t = std::time::Instant::now();
-        if let Some((epoch, reason, points)) = self.poll_solve() {
+        if let Some((epoch, reason, batch)) = self.poll_solve() {
             out.epoch = Some((epoch, reason));
-            out.points = points;
+            out.batches.push(batch);
             self.counts.adopt_s += t.elapsed().as_secs_f64();
         }
-        self.counts.points += out.points.len() as u64;
-        self.maybe_start_solve();
+        let t = std::time::Instant::now();
+        let frame = self.scan.frames() - 1;
+        out.batches.extend(self.place(frame, BatchKind::Arrival));
+        for _ in 0..BACKLOG_PER_FRAME {
+            let Some(f) = self.backlog.next() else { break };
+            out.batches.extend(self.place(f, BatchKind::Backlog));
+        }
+        self.counts.place_s += t.elapsed().as_secs_f64();
+        self.counts.points += out
+            .batches
+            .iter()
+            .map(|b| b.points.len() as u64)
+            .sum::<u64>();
+        self.maybe_start_solve(captured_nanos);
         out
     }
 
-    /// Starts a background global solve when the planes have grown enough.
-    fn maybe_start_solve(&mut self) {
+    /// Frame `frame`'s points placed against the current epoch (see
+    /// [`crate::pipeline::Record::frame_cloud`]), if it came after the epoch and gave any.
+    fn place(&mut self, frame: usize, kind: BatchKind) -> Option<Batch> {
+        let est = self.current.as_ref().filter(|e| frame >= e.frames)?;
+        let out = self.scan.record().frame_cloud(
+            frame,
+            &est.calibration,
+            &est.plane_index,
+            &est.placing,
+            &self.config,
+            self.colour.as_deref(),
+        )?;
+        let mut cloud = out.cloud;
+        if cloud.points.is_empty() {
+            return None;
+        }
+        cloud::apply_scale(&mut cloud, est.factor);
+        match kind {
+            BatchKind::Arrival => self.counts.frames_placed_on_arrival += 1,
+            _ => self.counts.frames_placed_late += 1,
+        }
+        Some(Batch {
+            points: stream::points_of(&cloud, 0..cloud.points.len()),
+            captured_nanos: self.captured.get(frame).copied().unwrap_or(0),
+            kind,
+        })
+    }
+
+    /// Starts an epoch on its own thread when the planes have grown enough;
+    /// `captured_nanos` is the capture time of the newest frame in the scan.
+    fn maybe_start_solve(&mut self, captured_nanos: u64) {
         let n = self.scan.planes().len();
         if self.pending.is_some() || n < self.next_solve_at {
             return;
         }
-        let (evidence, plane_index) = self.scan.solve_input(&self.camera, &self.config);
-        // Warm start: the current epoch's planes where it has them.
-        let warm: Option<Vec<Option<Vector3<f64>>>> = self.current.as_ref().map(|e| {
-            let mut warm = vec![None; evidence.planes.len()];
-            for (i, k) in plane_index.iter().enumerate() {
-                if let (Some(k), Some(Some(old))) = (k, e.plane_index.get(i)) {
-                    warm[*k as usize] = e.calibration.plane(*old as usize);
-                }
-            }
-            warm
-        });
-        let params = self.config.solve.clone();
+        let job = epoch::Job {
+            record: self.scan.snapshot(),
+            camera: self.camera.clone(),
+            config: self.config.clone(),
+            scale: self.scale.clone(),
+            colour: self.colour.clone(),
+            warm: self.current.clone(),
+        };
         let cancel = solve::Cancel::default();
-        let stop = cancel.clone();
-        let (tx, rx) = bounded(1);
-        let spawned = std::thread::Builder::new()
-            .name("solver-epoch".into())
-            .stack_size(super::WORKER_STACK_BYTES)
-            .spawn(move || {
-                let solve = || solve::calibrate_until(&evidence, &params, warm.as_deref(), &stop);
-                let answer = match epoch_pool() {
-                    Ok(pool) => pool.install(solve),
-                    Err(e) => {
-                        tracing::warn!("no thread pool for the epoch's solve ({e}): solving here");
-                        solve()
-                    }
-                };
-                if matches!(answer, Err(SolveError::Cancelled)) {
-                    tracing::debug!("an epoch's solve stopped: superseded");
-                }
-                let _ = tx.send(answer);
-            });
-        match spawned {
-            Ok(_) => {
+        match epoch::start(job, cancel.clone()) {
+            Ok(answer) => {
                 self.pending = Some(Pending {
-                    answer: rx,
-                    plane_index,
+                    answer,
+                    planes: n,
+                    captured_nanos,
                     cancel,
                 })
             }
@@ -232,28 +286,31 @@ impl Incremental {
         self.next_solve_at = ((n as f64) * self.params.solve_growth.max(1.05)).ceil() as usize;
     }
 
-    /// Adopts a finished background solve; returns the new epoch and its points.
-    fn poll_solve(&mut self) -> Option<(u32, EpochReason, Vec<Point>)> {
+    /// Adopts a finished epoch; returns its number and cloud. The frames since its
+    /// snapshot become the backlog to place against it.
+    fn poll_solve(&mut self) -> Option<(u32, EpochReason, Batch)> {
         let pending = self.pending.as_ref()?;
         let result = match pending.answer.try_recv() {
             Ok(r) => r,
             Err(TryRecvError::Empty) => return None,
-            Err(TryRecvError::Disconnected) => Err(SolveError::Degenerate("solver thread died")),
+            Err(TryRecvError::Disconnected) => Err(NotAdopted::Solve(SolveError::Degenerate(
+                "solver thread died",
+            ))),
         };
-        let mut pending = self.pending.take()?;
+        let (planes, captured) = self
+            .pending
+            .take()
+            .map_or((0, 0), |p| (p.planes, p.captured_nanos));
         self.counts.global_solves += 1;
-        let calibration = match result {
-            Ok(c) => c,
+        let answer = match result {
+            Ok(a) => a,
             Err(e) => {
                 self.counts.failed_global_solves += 1;
-                tracing::info!(
-                    planes = pending.plane_index.len(),
-                    "global solve not possible yet: {e}"
-                );
+                tracing::info!(planes, "{e}");
                 return None;
             }
         };
-        let summary = &calibration.summary;
+        let summary = &answer.estimate.calibration.summary;
         self.counts.planes_in_global_solve = summary.planes_in_global_start as u64;
         self.counts.residual_rms_px = summary.spreads.map_or(0.0, |s| s.crossing_px[0]);
         let focal_warning = solve::focal_warning(summary.focal_scale, summary.focal_scale_std);
@@ -261,31 +318,10 @@ impl Incremental {
             tracing::warn!(epoch = self.epoch + 1, "{warning}");
         }
         self.focal_uncertain = focal_warning.is_some();
-        let (out, fit) = self.scan.epoch_cloud(
-            &calibration,
-            &pending.plane_index,
-            &self.camera,
-            &self.config,
-            self.colour.as_deref(),
-        );
-        // The offline pipeline's checks: planes that most curves contradict, or that fit
-        // the crossings far worse than the curves place them, give no cloud, and no epoch.
-        if let Some(reason) = pipeline::refusal(&out.stats, fit) {
-            self.counts.failed_global_solves += 1;
-            tracing::info!(
-                planes = pending.plane_index.len(),
-                "epoch not adopted: {reason}"
-            );
-            return None;
-        }
-        let factor = cloud::scale_for(&self.scale, &out.cloud, &out.pixels).unwrap_or(1.0);
-        let mut cloud = out.cloud;
-        cloud::apply_scale(&mut cloud, factor);
-        self.counts.planes_solved = out.planes_with_points as u64;
-        self.current = Some(Epoch {
-            calibration: Arc::new(calibration),
-            plane_index: std::mem::take(&mut pending.plane_index),
-        });
+        self.counts.planes_solved = answer.planes_with_points as u64;
+        // The newest frame is placed by the caller.
+        self.backlog = answer.estimate.frames..self.scan.frames().saturating_sub(1);
+        self.current = Some(answer.estimate);
         let reason = if self.epoch == 0 {
             EpochReason::First
         } else {
@@ -293,9 +329,16 @@ impl Incremental {
         };
         self.epoch += 1;
         self.counts.epoch = self.epoch;
-        let points = stream::points_of(&cloud, 0..cloud.len());
         self.counts.points = 0;
-        Some((self.epoch, reason, points))
+        Some((
+            self.epoch,
+            reason,
+            Batch {
+                points: answer.points,
+                captured_nanos: captured,
+                kind: BatchKind::Epoch,
+            },
+        ))
     }
 
     /// The final solve over every curve, exactly as `crossline reconstruct` does it on
@@ -304,6 +347,7 @@ impl Incremental {
         // A background solve still running is superseded.
         self.pending = None;
         self.current = None;
+        self.backlog = 0..0;
         let scan = std::mem::replace(&mut self.scan, Scan::new(&self.camera, &self.config));
         let rec = pipeline::reconstruct_scan(
             scan,
@@ -327,38 +371,10 @@ impl Incremental {
     }
 }
 
-/// The epoch's solve runs on a one-thread pool of its own: its parallel parts (the centre
-/// search, the poses fitted against the anchors) would otherwise take the global pool's
-/// threads beside its own, and with them the extraction workers' cores. It keeps the
-/// normal priority: at nice 19 (tried) a loaded machine starved it, and the unit tests'
-/// epochs never came while frames were fed. The final solve
-/// ([`Incremental::finish`]) runs after the last frame and keeps every core.
-fn epoch_pool() -> Result<rayon::ThreadPool, rayon::ThreadPoolBuildError> {
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .thread_name(|_| "solver-epoch-pool".into())
-        .stack_size(super::WORKER_STACK_BYTES)
-        .build()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::solve::synthetic::{curve_polyline, random_scan, worst_off_surface, ScanSpec};
-
-    /// An epoch's solve (and anything it runs in parallel) stays on one thread.
-    #[test]
-    fn the_epoch_pool_is_one_named_thread() {
-        let pool = epoch_pool().expect("pool");
-        let (threads, name) = pool.install(|| {
-            (
-                rayon::current_num_threads(),
-                std::thread::current().name().map(str::to_owned),
-            )
-        });
-        assert_eq!(threads, 1);
-        assert_eq!(name.as_deref(), Some("solver-epoch-pool"));
-    }
 
     /// With the focal length estimated (the in-air calibration under water: every
     /// normalised point 1.33 times too far out), the streamed cloud lies on the
@@ -385,7 +401,7 @@ mod tests {
         let mut epochs = 0;
         let mut take = |out: Output| {
             epochs += usize::from(out.epoch.is_some());
-            points.extend(out.points);
+            points.extend(out.batches.into_iter().flat_map(|b| b.points));
             epochs
         };
         for k in 0..scan.planes.len() / 2 {
@@ -432,19 +448,27 @@ mod tests {
         );
     }
 
-    /// Feeds `frames` to `solver` at about 30 fps and returns each epoch's points (an
-    /// epoch carries its whole cloud; between epochs nothing is sent).
-    fn live_epochs(solver: &mut Incremental, frames: Vec<Vec<Curve>>) -> Vec<Vec<Point>> {
-        let mut epochs: Vec<Vec<Point>> = Vec::new();
+    /// What one epoch sent: its cloud, and the frames placed against it.
+    #[derive(Default)]
+    struct Sent {
+        cloud: Vec<Point>,
+        placed: Vec<Point>,
+    }
+
+    /// Feeds `frames` to `solver` at about 30 fps and returns what each epoch sent.
+    fn live_epochs(solver: &mut Incremental, frames: Vec<Vec<Curve>>) -> Vec<Sent> {
+        let mut epochs: Vec<Sent> = Vec::new();
         for curves in frames {
             let out = solver.add_frame(curves, 0);
             if out.epoch.is_some() {
-                epochs.push(Vec::new());
-            } else {
-                assert!(out.points.is_empty(), "points between epochs");
+                epochs.push(Sent::default());
             }
-            if let Some(e) = epochs.last_mut() {
-                e.extend(out.points);
+            for b in out.batches {
+                let e = epochs.last_mut().expect("no points before the first epoch");
+                match b.kind {
+                    BatchKind::Epoch => e.cloud.extend(b.points),
+                    BatchKind::Arrival | BatchKind::Backlog => e.placed.extend(b.points),
+                }
             }
             // Give the background solve time, as frames at 30 fps would.
             std::thread::sleep(std::time::Duration::from_millis(20));
@@ -496,6 +520,17 @@ mod tests {
         points: &[Point],
         tolerance: f64,
     ) -> usize {
+        points_on_wrong_planes_of(scan, points, tolerance, points.len())
+    }
+
+    /// [`points_on_wrong_planes`] of `points`, counting only those before `upto` (the
+    /// global scale still fitted on all of them).
+    fn points_on_wrong_planes_of(
+        scan: &crate::solve::synthetic::PathScan,
+        points: &[Point],
+        tolerance: f64,
+        upto: usize,
+    ) -> usize {
         let ratios: Vec<f64> = points
             .iter()
             .map(|p| {
@@ -505,7 +540,7 @@ mod tests {
             })
             .collect();
         let mut planes: std::collections::HashMap<(u32, u8), Vec<f64>> = Default::default();
-        for (p, e) in points.iter().zip(relative_to_median(&ratios)) {
+        for (p, e) in points.iter().zip(relative_to_median(&ratios)).take(upto) {
             planes.entry((p.frame, p.laser)).or_default().push(e);
         }
         planes
@@ -589,9 +624,34 @@ mod tests {
         let epochs = live_epochs(&mut solver, frames);
         let failing: Vec<usize> = epochs
             .iter()
-            .map(|points| points_on_wrong_planes(&scan, points, bound))
+            .map(|e| points_on_wrong_planes(&scan, &e.cloud, bound))
             .collect();
+        // The frames placed against each epoch, on its scale.
+        let placed_wrong: Vec<(usize, usize)> = epochs
+            .iter()
+            .map(|e| {
+                let both: Vec<Point> = e.cloud.iter().chain(&e.placed).copied().collect();
+                let wrong = points_on_wrong_planes(&scan, &both, bound)
+                    - points_on_wrong_planes_of(&scan, &both, bound, e.cloud.len());
+                (wrong, e.placed.len())
+            })
+            .collect();
+        eprintln!(
+            "epochs' points on wrong planes {failing:?}; placed (wrong, all) {placed_wrong:?}"
+        );
         assert!(epochs.len() >= 3, "{} epochs", epochs.len());
+        // Frames placed against an epoch are no worse than it: none on a wrong plane
+        // where the epoch has none.
+        assert!(
+            placed_wrong.iter().any(|&(_, all)| all > 0),
+            "no frame placed"
+        );
+        for (e, (&(wrong, all), &own)) in placed_wrong.iter().zip(&failing).enumerate() {
+            assert!(
+                own > 0 || wrong == 0,
+                "epoch {e}: {wrong} of {all} points placed against it on wrong planes, none of its own"
+            );
+        }
         for (e, pair) in failing.windows(2).enumerate() {
             assert!(
                 pair[1] <= pair[0],
@@ -672,13 +732,26 @@ mod tests {
         // Nearly every live point on the surface. Not every one: an epoch made on the
         // evidence of a partial sweep (when it is made depends on the machine's load)
         // can place a few of the newest frames a few per cent off (the known limit).
-        let (off, all) = epochs.iter().fold((0, 0), |(off, all), points| {
+        let (off, all) = epochs.iter().fold((0, 0), |(off, all), e| {
             (
-                off + points_off(&scan.scene, points, 1e-3),
-                all + points.len(),
+                off + points_off(&scan.scene, &e.cloud, 1e-3),
+                all + e.cloud.len(),
             )
         });
         assert!(off * 50 < all, "{off} of {all} live points off the surface");
+        let (off, all) = epochs.iter().fold((0, 0), |(off, all), e| {
+            let both: Vec<Point> = e.cloud.iter().chain(&e.placed).copied().collect();
+            (
+                off + points_off(&scan.scene, &both, 1e-3)
+                    - points_off(&scan.scene, &e.cloud, 1e-3),
+                all + e.placed.len(),
+            )
+        });
+        assert!(all > 0, "no frame placed against an epoch");
+        assert!(
+            off * 50 < all,
+            "{off} of {all} placed points off the surface"
+        );
         let live = solver.finish().expect("final solve");
         let offline = crate::pipeline::reconstruct_curves(
             frames,

@@ -29,6 +29,7 @@
 
 mod background;
 pub mod checkpoint;
+mod epoch;
 pub mod incremental;
 mod listeners;
 pub mod net;
@@ -242,8 +243,13 @@ pub struct ServeReport {
     pub epochs: u32,
     pub cloud: PathBuf,
     pub points: usize,
-    /// From a frame's capture to its points written to a stream client's socket.
+    /// From a frame's capture to its points written to a stream client's socket, for
+    /// the frames placed on arrival against the current epoch
+    /// (`live_solver.frames_placed_on_arrival` counts them).
     pub latency: net::Latency,
+    /// From the capture of the newest frame an epoch's cloud holds (or a frame placed
+    /// late against it, from its backlog) to those points written to the socket.
+    pub epoch_latency: net::Latency,
     /// Time the solver thread spent per frame (crossings, placing planes,
     /// triangulating, adopting a new epoch).
     pub solver_frame: net::Latency,
@@ -280,6 +286,7 @@ impl ServeReport {
             cloud: PathBuf::new(),
             points: 0,
             latency: hub.stats.latency(),
+            epoch_latency: hub.stats.epoch_latency(),
             solver_frame: net::Latency::of_micros(lock(&shared.solver_frame_micros).clone()),
             live_solver: *lock(&shared.live_solver),
             stream_clients_total: hub.stats.clients_total.load(Ordering::Relaxed),

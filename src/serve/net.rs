@@ -19,7 +19,50 @@ use tokio::sync::{broadcast, Notify};
 use super::lock;
 use super::stream::{self, EpochReason};
 
-type Message = Arc<[u8]>;
+/// One framed message, shared by every queue it is in, and which latency it counts in
+/// when written.
+#[derive(Clone)]
+struct Message {
+    bytes: Arc<[u8]>,
+    timed: Timed,
+}
+
+/// Which latency a `POINTS` message counts in (see [`NetStats`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Timed {
+    /// Not timed (everything but `POINTS`, and points resent to catch a client up).
+    No,
+    /// A frame's points placed on its arrival.
+    Frame,
+    /// An epoch's cloud, or frames placed against it from its backlog.
+    Epoch,
+}
+
+impl std::ops::Deref for Message {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        &self.bytes
+    }
+}
+
+impl Message {
+    /// The same bytes, counted in no latency (resent to catch a client up).
+    fn untimed(&self) -> Self {
+        Self {
+            bytes: self.bytes.clone(),
+            timed: Timed::No,
+        }
+    }
+}
+
+impl From<Vec<u8>> for Message {
+    fn from(bytes: Vec<u8>) -> Self {
+        Self {
+            bytes: bytes.into(),
+            timed: Timed::No,
+        }
+    }
+}
 
 #[derive(Default)]
 struct ClientQueue {
@@ -65,6 +108,7 @@ pub struct NetStats {
     pub dropped_clients: AtomicU64,
     pub bytes_sent: AtomicU64,
     latencies_micros: Mutex<Vec<u64>>,
+    epoch_latencies_micros: Mutex<Vec<u64>>,
 }
 
 /// Latency percentiles in milliseconds.
@@ -79,16 +123,27 @@ pub struct Latency {
 const MAX_LATENCY_SAMPLES: usize = 1 << 20;
 
 impl NetStats {
-    fn record_latency(&self, micros: u64) {
-        let mut l = lock(&self.latencies_micros);
+    fn record_latency(&self, timed: Timed, micros: u64) {
+        let mut l = match timed {
+            Timed::No => return,
+            Timed::Frame => lock(&self.latencies_micros),
+            Timed::Epoch => lock(&self.epoch_latencies_micros),
+        };
         if l.len() < MAX_LATENCY_SAMPLES {
             l.push(micros);
         }
     }
 
-    /// From a frame's capture to its points fully written to a client's socket.
+    /// From a frame's capture to its points, placed on its arrival against the current
+    /// epoch, fully written to a client's socket.
     pub fn latency(&self) -> Latency {
         Latency::of_micros(lock(&self.latencies_micros).clone())
+    }
+
+    /// From the capture of the newest frame an epoch's cloud (or a late placement
+    /// against it) holds to those points written to a client's socket.
+    pub fn epoch_latency(&self) -> Latency {
+        Latency::of_micros(lock(&self.epoch_latencies_micros).clone())
     }
 }
 
@@ -151,11 +206,14 @@ impl Hub {
         }
     }
 
-    /// Appends points to the current epoch.
-    pub fn push_points(&self, messages: Vec<Vec<u8>>) {
+    /// Appends points to the current epoch; `timed` says which latency they count in.
+    pub fn push_points(&self, messages: Vec<Vec<u8>>, timed: Timed) {
         let mut s = lock(&self.state);
         for m in messages {
-            let m: Message = m.into();
+            let m = Message {
+                bytes: m.into(),
+                timed,
+            };
             s.epoch_messages.push(m.clone());
             for c in &s.clients {
                 c.push(m.clone());
@@ -205,7 +263,7 @@ impl Hub {
         q.queue.push_back(first);
         for m in s.epoch_messages.iter().skip(1).chain(s.end.iter()) {
             q.bytes += m.len();
-            q.queue.push_back(m.clone());
+            q.queue.push_back(m.untimed());
         }
         // Resending the epoch shares the hub's messages, so it costs no memory: only
         // what arrives after it counts against the bound.
@@ -223,7 +281,7 @@ impl Hub {
         });
         client.push(s.hello.clone());
         for m in s.epoch_messages.iter().chain(s.end.iter()) {
-            client.push(m.clone());
+            client.push(m.untimed());
         }
         // What a new client catches up on is shared with the hub; only growth counts.
         lock(&client.queue).bytes = 0;
@@ -291,7 +349,7 @@ impl Subscription {
                 }
                 if let Some(m) = q.queue.pop_front() {
                     q.bytes = q.bytes.saturating_sub(m.len());
-                    return Delivery::Message(m);
+                    return Delivery::Message(m.bytes);
                 }
             }
             notified.await;
@@ -375,7 +433,7 @@ async fn serve_client<W: AsyncWriteExt + Unpin>(hub: Arc<Hub>, mut w: W) {
                 lock(&client.queue).written_since_resync += m.len() as u64;
                 if let Some(t) = stream::captured_nanos(&m).filter(|&t| t > 0) {
                     hub.stats
-                        .record_latency(hub.now_nanos().saturating_sub(t) / 1000);
+                        .record_latency(m.timed, hub.now_nanos().saturating_sub(t) / 1000);
                 }
                 if m.len() >= 5 && m[4] == stream::END {
                     let _ = w.flush().await;

@@ -11,7 +11,7 @@ use crossbeam_channel::{Receiver, RecvTimeoutError};
 
 use super::background::LiveBackground;
 use super::checkpoint::{Checkpoint, FrameCurves};
-use super::incremental::Incremental;
+use super::incremental::{BatchKind, Incremental};
 use super::scan::{FdReserve, ScanFiles};
 use super::stream::{self, EpochReason};
 use super::{lock, net, status, Extracted, ServeError, ServeOptions, Shared};
@@ -101,8 +101,15 @@ impl Live<'_> {
                     feed.publish(status::event_line("epoch", &format!("epoch {epoch}")));
                     epoch_seen = epoch;
                 }
-                if !out.points.is_empty() {
-                    hub.push_points(stream::points(epoch_seen, out.captured_nanos, &out.points));
+                for b in out.batches.iter().filter(|b| !b.points.is_empty()) {
+                    let timed = match b.kind {
+                        BatchKind::Arrival => net::Timed::Frame,
+                        BatchKind::Epoch | BatchKind::Backlog => net::Timed::Epoch,
+                    };
+                    hub.push_points(
+                        stream::points(epoch_seen, b.captured_nanos, &b.points),
+                        timed,
+                    );
                 }
                 shared.frames_processed.fetch_add(1, Ordering::Relaxed);
                 *lock(&shared.solver) = solver.counts;
@@ -196,11 +203,14 @@ impl Live<'_> {
             scan.cloud.display()
         );
         hub.begin_epoch(solver.epoch(), EpochReason::Final);
-        hub.push_points(stream::points(
-            solver.epoch(),
-            0,
-            &stream::points_of(&cloud, 0..cloud.len()),
-        ));
+        hub.push_points(
+            stream::points(
+                solver.epoch(),
+                0,
+                &stream::points_of(&cloud, 0..cloud.len()),
+            ),
+            net::Timed::No,
+        );
         hub.end(cloud.len() as u64);
         *lock(&shared.solver) = solver.counts;
         Ok((cloud.len(), rec, err))

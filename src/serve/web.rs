@@ -333,10 +333,10 @@ mod tests {
         let hub = Arc::new(Hub::new("{}", 0, Instant::now()));
         let sub = hub.subscribe();
         hub.begin_epoch(1, EpochReason::First);
-        hub.push_points(big_batch(1));
+        hub.push_points(big_batch(1), crate::serve::net::Timed::No);
         assert_eq!(hub.stats.resyncs.load(Ordering::Relaxed), 1);
         // Still nothing read when the queue overflows again: dropped, and told why.
-        hub.push_points(big_batch(1));
+        hub.push_points(big_batch(1), crate::serve::net::Timed::No);
         assert_eq!(hub.stats.dropped_clients.load(Ordering::Relaxed), 1);
         match next(&rt, &sub) {
             Delivery::Bye(reason) => assert!(reason.contains("read nothing"), "{reason}"),
@@ -364,7 +364,7 @@ mod tests {
         };
         assert_eq!(kinds(1), [stream::HELLO]);
         hub.begin_epoch(1, EpochReason::First);
-        hub.push_points(big_batch(1));
+        hub.push_points(big_batch(1), crate::serve::net::Timed::No);
         // Overflowed: the queue is replaced by the epoch again, from a resync EPOCH.
         let Delivery::Message(first) = next(&rt, &sub) else {
             panic!("dropped after one overflow");
@@ -376,7 +376,7 @@ mod tests {
         sub.delivered(first.len());
         assert_eq!(kinds(1), [stream::POINTS]);
         // It reads, so a second overflow resynchronises it again instead of dropping it.
-        hub.push_points(big_batch(1));
+        hub.push_points(big_batch(1), crate::serve::net::Timed::No);
         assert_eq!(hub.stats.resyncs.load(Ordering::Relaxed), 2);
         assert_eq!(hub.stats.dropped_clients.load(Ordering::Relaxed), 0);
         hub.end(8000);
