@@ -302,7 +302,11 @@ impl ServeReport {
     }
 }
 
-pub const REPORT_VERSION: u32 = 1;
+/// Version of [`ServeReport`]'s JSON. 2: `latency` counts only frames placed on
+/// arrival, `epoch_latency` is new, and `live_solver` has `place_s`,
+/// `frames_placed_on_arrival` and `frames_placed_late` instead of `extend_s` and
+/// `triangulate_s`.
+pub const REPORT_VERSION: u32 = 2;
 
 /// Stack of the extraction and solver threads: the detector's and the median's
 /// per-pixel work arrays live on the stack, more than the 2 MiB default.

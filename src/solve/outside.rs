@@ -205,11 +205,17 @@ mod tests {
                     .iter()
                     .position(|s| s.pose as usize == f && usize::from(s.laser) == laser)
                     .expect("plane");
-                assert_eq!(fit.verdicts[laser], cal.verdicts[slot], "pose {f} laser {laser}");
+                assert_eq!(
+                    fit.verdicts[laser], cal.verdicts[slot],
+                    "pose {f} laser {laser}"
+                );
                 let (Some(v), Some(w)) = (fit.pose.plane(laser), est.poses[f].plane(laser)) else {
                     panic!("pose {f} has no plane {laser}");
                 };
-                assert!((v - w).norm() <= 1e-9 * w.norm(), "pose {f}: {v} against {w}");
+                assert!(
+                    (v - w).norm() <= 1e-9 * w.norm(),
+                    "pose {f}: {v} against {w}"
+                );
             }
             let (m, n) = (fit.marginal, est.marginals[f]);
             assert!((m - n).norm() <= 1e-6 * n.norm(), "pose {f}'s covariance");
