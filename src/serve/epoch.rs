@@ -111,6 +111,7 @@ fn make(job: Job, cancel: &solve::Cancel) -> Result<Answer, NotAdopted> {
     let calibration = solve::calibrate_until(&evidence, &config.solve, warm.as_deref(), cancel)?;
     drop(evidence);
     cancel.check()?;
+    tracing::debug!(alternatives = ?calibration.summary.alternatives, planes = plane_index.len(), "an epoch's solve");
     let (out, fit) = record.epoch_cloud(
         &calibration,
         &plane_index,

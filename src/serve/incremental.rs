@@ -5,10 +5,11 @@
 //! - Each new frame's curves go into the scan at once: their crossings with the anchors'
 //!   curves (and an anchor's with every curve) are found and refined.
 //! - An epoch is the estimator's answer on the evidence so far:
-//!   [`crate::solve::calibrate_until`] on the scan's evidence, warm-started from the last
-//!   epoch's planes (the frames since placed by their crossings with those), and the
-//!   offline triangulation of every plane it determines (the same uncertainty rule, and
-//!   the same crossing check: an epoch whose planes most curves contradict is not
+//!   [`crate::solve::calibrate_until`] on the scan's evidence: the offline estimator's
+//!   two cold starts and, as a third, the last epoch's planes (the frames since placed
+//!   by their crossings with those), the best explanation of the evidence winning; and
+//!   the offline triangulation of every plane it determines (the same uncertainty rule,
+//!   and the same crossing check: an epoch whose planes most curves contradict is not
 //!   adopted). All of it runs on a thread of its own ([`super::epoch`]), on a snapshot
 //!   of the scan taken when it starts. The first
 //!   is tried once `min_planes_first_solve` planes have arrived, the next whenever the

@@ -281,19 +281,53 @@ pub fn calibrate_from(
     params: &SolveParams,
     given: Option<&[Option<V3>]>,
 ) -> Result<Calibration, SolveError> {
-    calibrate_until(evidence, params, given, &super::Cancel::default())
+    let from = match given {
+        Some(planes) => StartFrom::Only(planes),
+        None => StartFrom::Starts,
+    };
+    calibrate_with(evidence, params, from, &super::Cancel::default())
 }
 
-/// [`calibrate_from`], stopped with [`SolveError::Cancelled`] once `cancel` is set (the
-/// daemon's epochs, superseded by its final solve).
+/// [`calibrate`], with the planes of an earlier estimate (`warm`, per plane of
+/// `evidence`) as one more start beside the two cold ones, and stopped with
+/// [`SolveError::Cancelled`] once `cancel` is set: the daemon's epochs, superseded by its
+/// final solve. The warm start is a candidate, not the answer: the estimate that
+/// explains the evidence best wins, as offline. (Started from the last epoch alone, an
+/// epoch that had settled in a wrong solution passed it on to every later one: on a
+/// table top every live cloud after the first lay on wrong planes while the final one,
+/// made cold, was right.)
 pub fn calibrate_until(
     evidence: &Evidence,
     params: &SolveParams,
-    given: Option<&[Option<V3>]>,
+    warm: Option<&[Option<V3>]>,
+    cancel: &super::Cancel,
+) -> Result<Calibration, SolveError> {
+    let from = match warm {
+        Some(planes) => StartFrom::AlsoFrom(planes),
+        None => StartFrom::Starts,
+    };
+    calibrate_with(evidence, params, from, cancel)
+}
+
+/// Where the joint estimate starts.
+#[derive(Clone, Copy)]
+enum StartFrom<'a> {
+    /// The two cold starts (the linear start and the fixed-centre start).
+    Starts,
+    /// These planes only.
+    Only(&'a [Option<V3>]),
+    /// The two cold starts and these planes.
+    AlsoFrom(&'a [Option<V3>]),
+}
+
+fn calibrate_with(
+    evidence: &Evidence,
+    params: &SolveParams,
+    from: StartFrom<'_>,
     cancel: &super::Cancel,
 ) -> Result<Calibration, SolveError> {
     evidence.validate().map_err(SolveError::InvalidProblem)?;
-    if let Some(planes) = given {
+    if let StartFrom::Only(planes) | StartFrom::AlsoFrom(planes) = from {
         if planes.len() != evidence.planes.len() {
             return Err(SolveError::InvalidProblem(format!(
                 "{} start planes for {} planes",
@@ -312,16 +346,33 @@ pub fn calibrate_until(
         threads: params.dense_threads,
         ..EstimateParams::default()
     };
-    let (start, planes, mut estimates) = match given {
-        Some(planes) => {
-            let planes = split.planes_of(&extended(evidence, planes));
-            let estimates = refine_starts(sub, &planes, 1.0, 0.1, &eparams)?;
-            (super::Solution::empty(), planes, estimates)
+    let given = |planes: &[Option<V3>]| -> Result<Starts, SolveError> {
+        let planes = split.planes_of(&extended(evidence, planes));
+        let estimates = refine_starts(sub, &planes, 1.0, 0.1, &eparams)?;
+        Ok((super::Solution::empty(), planes, estimates))
+    };
+    let (cold, (start, planes, mut estimates)) = match from {
+        StartFrom::Starts => (true, two_starts(evidence, &split, params, &eparams)?),
+        StartFrom::Only(planes) => (false, given(planes)?),
+        StartFrom::AlsoFrom(planes) => {
+            let warm = given(planes);
+            match two_starts(evidence, &split, params, &eparams) {
+                Ok((start, planes, mut estimates)) => {
+                    if let Ok((_, _, w)) = warm {
+                        estimates.extend(w);
+                    }
+                    (true, (start, planes, estimates))
+                }
+                Err(SolveError::Cancelled) => return Err(SolveError::Cancelled),
+                Err(e) => match warm {
+                    Ok(w) if !w.2.is_empty() => (false, w),
+                    _ => return Err(e),
+                },
+            }
         }
-        None => two_starts(evidence, &split, params, &eparams)?,
     };
     let sigma_px = start_spread_px(&start, evidence);
-    if params.estimate_focal && given.is_none() {
+    if params.estimate_focal && cold {
         let made_at = start.focal_scale;
         restart_at_found_focal(
             evidence,

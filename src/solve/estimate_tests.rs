@@ -560,6 +560,65 @@ fn a_cancelled_solve_stops_and_says_so() {
     }
 }
 
+/// An epoch's warm start is one candidate among the cold starts, not the answer: started
+/// from planes far from any solution (another hand path's), the live solve still finds
+/// the cold solve's planes. Started from them alone (as epochs were), it settles
+/// elsewhere.
+#[test]
+fn a_wrong_warm_start_is_outvoted_by_the_cold_starts() {
+    let scan = path_scan(&PathSpec {
+        frames: 40,
+        ..PathSpec::default()
+    });
+    let ev = evidence_of(&scan, 0.1, 3, |_, _| true);
+    let params = super::SolveParams::default();
+    let truth = scan.flat_planes();
+    // The planes of another hand path (held elsewhere, swept otherwise) in the same room.
+    let other = path_scan(&PathSpec {
+        frames: 40,
+        seed: 9,
+        centre: V3::new(-0.5, 0.4, 0.3),
+        sweep_period: 23.0,
+        ..PathSpec::default()
+    });
+    let wrong: Vec<Option<V3>> = other.flat_planes().into_iter().map(Some).collect();
+    // Median relative depth error at the crossings, after the best global scale.
+    let error = |cal: &super::Calibration| {
+        let ratios: Vec<(f64, f64)> = ev
+            .crossings
+            .iter()
+            .filter_map(|c| {
+                let ray = cal.ray(c.u)?;
+                let v = cal.plane(c.a as usize)?;
+                Some((truth[c.a as usize].dot(&ray.r), v.dot(&ray.r)))
+            })
+            .collect();
+        let scale = super::median(ratios.iter().map(|(t, e)| t / e).collect()).expect("crossings");
+        super::median(
+            ratios
+                .iter()
+                .map(|(t, e)| (t / (e * scale) - 1.0).abs())
+                .collect(),
+        )
+        .expect("crossings")
+    };
+    let cancel = super::Cancel::default();
+    let cold = super::calibrate_until(&ev, &params, None, &cancel).expect("cold");
+    let live = super::calibrate_until(&ev, &params, Some(&wrong), &cancel).expect("warm");
+    assert!(error(&cold) < 1e-3, "cold: {}", error(&cold));
+    assert!(
+        error(&live) < 1e-3,
+        "with the wrong warm start: {}",
+        error(&live)
+    );
+    let only = super::calibrate_from(&ev, &params, Some(&wrong));
+    let alone = only.as_ref().map_or(f64::INFINITY, error);
+    assert!(
+        alone > 1e-2,
+        "from the wrong planes alone: {alone} (the test needs a wrong start)"
+    );
+}
+
 /// A focal scale is only a model of the camera if every crossing seen still has a ray
 /// there: below it, the lens model folds back over the crossing's pixel, which the
 /// camera could then not have imaged. Here the crossings ask for a scale of 0.9 (the
