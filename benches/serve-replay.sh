@@ -57,6 +57,8 @@ f = r["solver_frame"]
 print(f"solver thread per frame: p50 {f['p50_ms']:.1f} ms, p95 {f['p95_ms']:.1f} ms, max {f['max_ms']:.1f} ms")
 print(f"CPU {r['cpu_seconds']:.1f} s over {r['wall_seconds']:.1f} s wall = "
       f"{100 * r['cpu_seconds'] / r['wall_seconds'] / cores:.0f} % of {cores} cores")
+fin = r.get("final_cloud_after_last_frame_s")
+print(f"final cloud written {fin:.1f} s after the last frame's capture" if fin is not None else "no final cloud")
 print(f"epochs {r['epochs']}, points {r['points']}, planes solved "
       f"{rec.get('planes_solved')} of {rec.get('planes')}")
 PY

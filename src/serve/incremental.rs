@@ -13,7 +13,8 @@
 //!   adopted). All of it runs on a thread of its own ([`super::epoch`]), on a snapshot
 //!   of the scan taken when it starts. The first
 //!   is tried once `min_planes_first_solve` planes have arrived, the next whenever the
-//!   planes have grown by `solve_growth`; a failed one is retried at the same growth.
+//!   planes have grown by `solve_growth`; a failed one is retried at the same growth,
+//!   or at 1.5 while no epoch has been adopted.
 //! - Between epochs, each new frame is placed against the current epoch as it arrives:
 //!   its pose fitted from its crossings with the epoch's joint poses exactly as the
 //!   offline estimate fits every frame outside its anchors, with the joint poses'
@@ -84,6 +85,11 @@ pub enum BatchKind {
     /// it was adopted.
     Backlog,
 }
+
+/// Growth of the planes at which a first epoch is tried again while none has been
+/// adopted (at most `solve_growth`): until then the user sees no point, and the tries
+/// are cheap, being small.
+const FIRST_EPOCH_GROWTH: f64 = 1.5;
 
 /// Frames of an adopted epoch's backlog placed per frame added: at 30 frames a second,
 /// a backlog of 10 s is placed in about 3 s, and no frame waits long for it.
@@ -284,7 +290,12 @@ impl Incremental {
             }
             Err(e) => tracing::warn!("cannot start a background solve: {e}"),
         }
-        self.next_solve_at = ((n as f64) * self.params.solve_growth.max(1.05)).ceil() as usize;
+        // Until an epoch is adopted nothing is shown, so the first is tried again sooner.
+        let growth = match self.current {
+            Some(_) => self.params.solve_growth,
+            None => self.params.solve_growth.min(FIRST_EPOCH_GROWTH),
+        };
+        self.next_solve_at = ((n as f64) * growth.max(1.05)).ceil() as usize;
     }
 
     /// Adopts a finished epoch; returns its number and cloud. The frames since its
@@ -369,6 +380,11 @@ impl Incremental {
 
     pub fn epoch(&self) -> u32 {
         self.epoch
+    }
+
+    /// Capture time of the last frame added.
+    pub fn last_captured_nanos(&self) -> Option<u64> {
+        self.captured.last().copied()
     }
 }
 

@@ -113,7 +113,7 @@ impl Default for ServeConfig {
             record_rotate_mib: 2048,
             checkpoint_interval_s: 2.0,
             min_planes_first_solve: 40,
-            solve_growth: 1.5,
+            solve_growth: 3.0,
             status_socket: "/run/crossline/status.sock".into(),
             status_interval_ms: 1000,
             stream_tcp: "127.0.0.1:7878".into(),
@@ -243,6 +243,8 @@ pub struct ServeReport {
     pub epochs: u32,
     pub cloud: PathBuf,
     pub points: usize,
+    /// From the last frame's capture to the final cloud written, seconds.
+    pub final_cloud_after_last_frame_s: Option<f64>,
     /// From a frame's capture to its points written to a stream client's socket, for
     /// the frames placed on arrival against the current epoch
     /// (`live_solver.frames_placed_on_arrival` counts them).
@@ -285,6 +287,7 @@ impl ServeReport {
             epochs: 0,
             cloud: PathBuf::new(),
             points: 0,
+            final_cloud_after_last_frame_s: None,
             latency: hub.stats.latency(),
             epoch_latency: hub.stats.epoch_latency(),
             solver_frame: net::Latency::of_micros(lock(&shared.solver_frame_micros).clone()),
@@ -303,7 +306,7 @@ impl ServeReport {
 }
 
 /// Version of [`ServeReport`]'s JSON. 2: `latency` counts only frames placed on
-/// arrival, `epoch_latency` is new, and `live_solver` has `place_s`,
+/// arrival, `epoch_latency` and `final_cloud_after_last_frame_s` are new, and `live_solver` has `place_s`,
 /// `frames_placed_on_arrival` and `frames_placed_late` instead of `extend_s` and
 /// `triangulate_s`.
 pub const REPORT_VERSION: u32 = 2;
@@ -494,17 +497,18 @@ pub fn run(
         flags.status_stop.store(true, Ordering::Relaxed);
         outcome
     });
-    let (points, reconstruction, solve_error) = outcome?;
+    let finished = outcome?;
     let report = ServeReport {
         resumed_frames,
         epochs: solver.epoch(),
         cloud: scan.cloud.clone(),
-        points,
+        points: finished.points,
+        final_cloud_after_last_frame_s: finished.after_last_frame_s,
         cpu_seconds: cpu_seconds() - cpu_start,
         capture_error: lock(&flags.capture_error).clone(),
         checkpoint_error: checkpoint.error().map(str::to_string),
-        reconstruction,
-        solve_error,
+        reconstruction: finished.reconstruction,
+        solve_error: finished.solve_error,
         ..ServeReport::counted(&scan.id, &opts.input_id, &shared, &hub, started)
     };
     scan::close(&scan, &opts.out_dir, &report)?;

@@ -303,7 +303,8 @@ impl Hub {
         s.clients.iter().all(|c| lock(&c.queue).queue.is_empty())
     }
 
-    fn now_nanos(&self) -> u64 {
+    /// Nanoseconds since the hub started: the clock of the frames' capture times.
+    pub(super) fn now_nanos(&self) -> u64 {
         self.started.elapsed().as_nanos() as u64
     }
 }

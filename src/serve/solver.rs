@@ -16,12 +16,16 @@ use super::scan::{FdReserve, ScanFiles};
 use super::stream::{self, EpochReason};
 use super::{lock, net, status, Extracted, ServeError, ServeOptions, Shared};
 
-/// The final cloud's points, the reconstruction's report, and why the solve failed.
-pub(super) type Finished = (
-    usize,
-    Option<crate::reconstruct::ReconstructReport>,
-    Option<String>,
-);
+/// How the final solve ended.
+pub(super) struct Finished {
+    /// Points in the final cloud.
+    pub points: usize,
+    pub reconstruction: Option<crate::reconstruct::ReconstructReport>,
+    /// Why the final solve failed, if it did.
+    pub solve_error: Option<String>,
+    /// From the last frame's capture to the final cloud written, seconds.
+    pub after_last_frame_s: Option<f64>,
+}
 
 /// What the solver thread tells and where it writes.
 #[derive(Clone, Copy)]
@@ -197,8 +201,12 @@ impl Live<'_> {
         } else {
             crate::ply::write_ply_atomic(&scan.cloud, &cloud, &comments)?;
         }
+        let after_last_frame_s = solver
+            .last_captured_nanos()
+            .map(|t| hub.now_nanos().saturating_sub(t) as f64 / 1e9);
         tracing::info!(
             points = cloud.len(),
+            after_last_frame_s,
             "cloud written to {}",
             scan.cloud.display()
         );
@@ -213,7 +221,12 @@ impl Live<'_> {
         );
         hub.end(cloud.len() as u64);
         *lock(&shared.solver) = solver.counts;
-        Ok((cloud.len(), rec, err))
+        Ok(Finished {
+            points: cloud.len(),
+            reconstruction: rec,
+            solve_error: err,
+            after_last_frame_s,
+        })
     }
 }
 
