@@ -1,0 +1,425 @@
+//! The live solver's tests: epochs on the surface, monotone in evidence, frames placed
+//! against them, and the final cloud equal to `reconstruct`'s.
+
+use super::*;
+use crate::solve::synthetic::{curve_polyline, random_scan, worst_off_surface, ScanSpec};
+
+/// With the focal length estimated (the in-air calibration under water: every
+/// normalised point 1.33 times too far out), the streamed cloud lies on the
+/// surface. It once came out many times off: the epoch's planes were turned back
+/// into the focal-corrected coordinates and met the uncorrected points.
+#[test]
+fn an_epoch_with_an_estimated_focal_length_lies_on_the_surface() {
+    let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+    let scan = random_scan(&ScanSpec::default());
+    let lambda = 1.33;
+    let mut config = Config::default();
+    config.solve.estimate_focal = true;
+    let strength = 2.0 * config.solve.min_curve_strength;
+    let mut solver = Incremental::new(
+        camera.clone(),
+        config,
+        IncrementalParams {
+            min_planes_first_solve: scan.planes.len(),
+            solve_growth: 10.0,
+        },
+        ScaleMode::Factor { factor: 1.0 },
+    );
+    let mut points = Vec::new();
+    let mut epochs = 0;
+    let mut take = |out: Output| {
+        epochs += usize::from(out.epoch.is_some());
+        points.extend(out.batches.into_iter().flat_map(|b| b.points));
+        epochs
+    };
+    for k in 0..scan.planes.len() / 2 {
+        let curves: Vec<Curve> = (0..2)
+            .filter_map(|l| {
+                let v = scan.planes[2 * k + l];
+                let pts: Vec<[f64; 2]> = curve_polyline(&scan.scene, &v, 1.0 / camera.fx)?
+                    .into_iter()
+                    .map(|p| [p[0] * lambda, p[1] * lambda])
+                    .collect();
+                Some(Curve {
+                    laser: l as u8,
+                    points_px: pts
+                        .iter()
+                        .map(|p| {
+                            let [u, v] = camera.pixel_from_normalized(p[0], p[1]);
+                            [u as f32, v as f32]
+                        })
+                        .collect(),
+                    strength: vec![strength; pts.len()],
+                    polyline: pts.clone(),
+                    points: pts,
+                })
+            })
+            .collect();
+        take(solver.add_frame(curves, 0));
+    }
+    // The solve runs in the background; empty frames poll it (for as long as a loaded
+    // machine needs: this is no speed test).
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(300);
+    while std::time::Instant::now() < deadline {
+        if take(solver.add_frame(Vec::new(), 0)) > 0 {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    assert!(points.len() > 1000, "{} points", points.len());
+    let xyz: Vec<[f32; 3]> = points.iter().map(|p| p.xyz).collect();
+    let worst = worst_off_surface(&scan.scene, &xyz);
+    assert!(
+        worst < 1e-3,
+        "a point {:.3} % off the surface",
+        100.0 * worst
+    );
+}
+
+/// What one epoch sent: its cloud, and the frames placed against it.
+#[derive(Default)]
+struct Sent {
+    cloud: Vec<Point>,
+    placed: Vec<Point>,
+}
+
+/// Feeds `frames` to `solver` at about 30 fps and returns what each epoch sent.
+fn live_epochs(solver: &mut Incremental, frames: Vec<Vec<Curve>>) -> Vec<Sent> {
+    let mut epochs: Vec<Sent> = Vec::new();
+    for curves in frames {
+        let out = solver.add_frame(curves, 0);
+        if out.epoch.is_some() {
+            epochs.push(Sent::default());
+        }
+        for b in out.batches {
+            let e = epochs.last_mut().expect("no points before the first epoch");
+            match b.kind {
+                BatchKind::Epoch => e.cloud.extend(b.points),
+                BatchKind::Arrival | BatchKind::Backlog => e.placed.extend(b.points),
+            }
+        }
+        // Give the background solve time, as frames at 30 fps would.
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    epochs
+}
+
+/// Of one epoch's points (one global scale, fitted as the median), how many lie more
+/// than `tolerance` (relative depth) off the surface.
+fn points_off(scene: &crate::solve::synthetic::Scene, points: &[Point], tolerance: f64) -> usize {
+    let ratios: Vec<f64> = points
+        .iter()
+        .map(|p| {
+            let [x, y, z] = p.xyz.map(f64::from);
+            scene.inverse_depth(x / z, y / z) * z
+        })
+        .collect();
+    relative_to_median(&ratios)
+        .iter()
+        .filter(|e| e.abs() > tolerance)
+        .count()
+}
+
+/// Each of `ratios` over their median, less one: the relative errors after one global
+/// scale. Empty for no ratios.
+fn relative_to_median(ratios: &[f64]) -> Vec<f64> {
+    let mut sorted = ratios.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let Some(&s0) = sorted.get(sorted.len() / 2) else {
+        return Vec::new();
+    };
+    ratios.iter().map(|r| r / s0 - 1.0).collect()
+}
+
+/// Of one epoch's points, how many lie on planes (one laser of one frame) whose depth
+/// is off by more than `tolerance` (relative, after one global scale fitted as the
+/// median). A plane's error is measured on the plane itself, not at its noisy
+/// points: each point is on its estimated plane, so `Z (v_true · r)` along the point's
+/// own ray `r` is the ratio of the true plane's inverse depth to the estimated one's.
+/// (The scene's depth at the point would add the point's own noise, which is
+/// several per cent where a plane meets the surface at a grazing angle, and is no
+/// part of the plane's uncertainty.)
+fn points_on_wrong_planes(
+    scan: &crate::solve::synthetic::PathScan,
+    points: &[Point],
+    tolerance: f64,
+) -> usize {
+    points_on_wrong_planes_of(scan, points, tolerance, points.len())
+}
+
+/// [`points_on_wrong_planes`] of `points`, counting only those before `upto` (the
+/// global scale still fitted on all of them).
+fn points_on_wrong_planes_of(
+    scan: &crate::solve::synthetic::PathScan,
+    points: &[Point],
+    tolerance: f64,
+    upto: usize,
+) -> usize {
+    let ratios: Vec<f64> = points
+        .iter()
+        .map(|p| {
+            let [x, y, z] = p.xyz.map(f64::from);
+            let truth = scan.planes[p.frame as usize][usize::from(p.laser)];
+            z * truth.dot(&nalgebra::Vector3::new(x / z, y / z, 1.0))
+        })
+        .collect();
+    let mut planes: std::collections::HashMap<(u32, u8), Vec<f64>> = Default::default();
+    for (p, e) in points.iter().zip(relative_to_median(&ratios)).take(upto) {
+        planes.entry((p.frame, p.laser)).or_default().push(e);
+    }
+    planes
+        .values_mut()
+        .filter_map(|e| {
+            e.sort_by(f64::total_cmp);
+            (e[e.len() / 2].abs() > tolerance).then_some(e.len())
+        })
+        .sum()
+}
+
+/// More evidence never makes an epoch worse: at 0.05 px of noise on every curve
+/// point (several times what extraction measures on rendered frames), no epoch has
+/// more points on planes that are off by more than three of the depth rule's
+/// deviations (the rule keeps a point only where its plane fixes its depth to
+/// `max_depth_sigma`) than the epoch before it, and the final cloud has none.
+///
+/// This test once reported 89 such points in the final cloud: it took a plane's error
+/// as the median of its points' error *sizes*, which is the points' own noise on a
+/// plane that meets the surface at a grazing angle (1.7 % on one 89-point curve
+/// whose plane was right). It now measures the planes themselves.
+#[test]
+fn epochs_are_monotone_in_evidence() {
+    assert_epochs_monotone(0.05);
+}
+
+/// The same at 0.3 px of curve noise, where the first epochs see each plane crossed
+/// only a few times and the polylines are jagged. Fails (issue 17): the first epoch
+/// keeps 1,997 points on planes over 1 % off. The mechanism: jagged polylines cross
+/// several times where their curves cross once, and each copy counts as an
+/// observation (704 crossings for 351 pairs of planes on 16 frames); the planes'
+/// errors are then 1.2-3.2 of their deviations (0.67 if honest), against 0.3-0.7
+/// with analytic crossings at the same noise. Keeping one crossing per run of a pair
+/// within the refinement radius made this test pass (at 0.5 px too) and the
+/// generality bench's seed 9 (0.102 % → 0.025 %), but it removed 284 of 34,511
+/// crossings of table-top seed 15, which then settled in a wrong solution (99 % of
+/// its points on wrong planes, unwarned); it was withdrawn until the estimator
+/// detects that second solution.
+#[test]
+#[ignore = "fails: repeated crossings of jagged polylines make the deviations 2-3x optimistic (issue 17)"]
+fn epochs_are_monotone_in_evidence_at_high_noise() {
+    assert_epochs_monotone(0.3);
+}
+
+/// The epochs' and final cloud's points on wrong planes (see
+/// [`epochs_are_monotone_in_evidence`]) with `noise_px` of Gaussian noise on every
+/// curve point.
+fn assert_epochs_monotone(noise_px: f64) {
+    let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+    let mut config = Config::default();
+    config.solve.max_anchor_poses = 40;
+    let (scan, frames) = path_frames(&camera, &config);
+    let mut rng = crate::solve::synthetic::Rng::new(5);
+    let sigma = noise_px / camera.fx;
+    let frames: Vec<Vec<Curve>> = frames
+        .into_iter()
+        .map(|curves| {
+            curves
+                .into_iter()
+                .map(|mut c| {
+                    for p in &mut c.points {
+                        p[0] += sigma * rng.normal();
+                        p[1] += sigma * rng.normal();
+                    }
+                    c.polyline = c.points.clone();
+                    c
+                })
+                .collect()
+        })
+        .collect();
+    let mut solver = Incremental::new(
+        camera,
+        config.clone(),
+        IncrementalParams {
+            min_planes_first_solve: 30,
+            solve_growth: 1.25,
+        },
+        ScaleMode::Factor { factor: 1.0 },
+    );
+    let bound = 3.0 * config.triangulate.max_depth_sigma;
+    let epochs = live_epochs(&mut solver, frames);
+    let failing: Vec<usize> = epochs
+        .iter()
+        .map(|e| points_on_wrong_planes(&scan, &e.cloud, bound))
+        .collect();
+    // The frames placed against each epoch, on its scale.
+    let placed_wrong: Vec<(usize, usize)> = epochs
+        .iter()
+        .map(|e| {
+            let both: Vec<Point> = e.cloud.iter().chain(&e.placed).copied().collect();
+            let wrong = points_on_wrong_planes(&scan, &both, bound)
+                - points_on_wrong_planes_of(&scan, &both, bound, e.cloud.len());
+            (wrong, e.placed.len())
+        })
+        .collect();
+    eprintln!("epochs' points on wrong planes {failing:?}; placed (wrong, all) {placed_wrong:?}");
+    assert!(epochs.len() >= 3, "{} epochs", epochs.len());
+    // Frames placed against an epoch are no worse than it: none on a wrong plane
+    // where the epoch has none.
+    assert!(
+        placed_wrong.iter().any(|&(_, all)| all > 0),
+        "no frame placed"
+    );
+    for (e, (&(wrong, all), &own)) in placed_wrong.iter().zip(&failing).enumerate() {
+        assert!(
+            own > 0 || wrong == 0,
+            "epoch {e}: {wrong} of {all} points placed against it on wrong planes, none of its own"
+        );
+    }
+    for (e, pair) in failing.windows(2).enumerate() {
+        assert!(
+            pair[1] <= pair[0],
+            "epoch {} has {} points on planes over {bound}, the one before {} (all: {failing:?})",
+            e + 1,
+            pair[1],
+            pair[0]
+        );
+    }
+    let last = solver.finish().expect("final solve");
+    let cloud = &last.cloud;
+    let (frames_of, lasers_of) = (cloud.frames.as_ref(), cloud.lasers.as_ref());
+    let final_points: Vec<Point> = (0..cloud.len())
+        .map(|i| Point {
+            xyz: cloud.points[i],
+            rgb: [0; 3],
+            laser: lasers_of.expect("lasers")[i],
+            frame: frames_of.expect("frames")[i],
+        })
+        .collect();
+    assert_eq!(points_on_wrong_planes(&scan, &final_points, bound), 0);
+}
+
+/// Curves of the synthetic path scan, frame by frame, as extracted.
+fn path_frames(
+    camera: &Camera,
+    config: &Config,
+) -> (crate::solve::synthetic::PathScan, Vec<Vec<Curve>>) {
+    let scan = crate::solve::synthetic::path_scan(&crate::solve::synthetic::PathSpec {
+        frames: 80,
+        ..Default::default()
+    });
+    let strength = 2.0 * config.solve.min_curve_strength;
+    let frames = scan
+        .planes
+        .iter()
+        .map(|p| {
+            (0..2)
+                .filter_map(|l| {
+                    let pts = curve_polyline(&scan.scene, &p[l], 1.0 / camera.fx)?;
+                    Some(Curve {
+                        laser: l as u8,
+                        points_px: pts
+                            .iter()
+                            .map(|q| camera.pixel_from_normalized(q[0], q[1]).map(|c| c as f32))
+                            .collect(),
+                        strength: vec![strength; pts.len()],
+                        polyline: pts.clone(),
+                        points: pts,
+                    })
+                })
+                .collect()
+        })
+        .collect();
+    (scan, frames)
+}
+
+/// The live solver runs the offline estimator: with anchors thinned as the scan grows,
+/// its epochs lie on the surface (but for the few points of the known limit), and its final
+/// cloud is `reconstruct`'s of the same curves, point for point.
+#[test]
+fn live_epochs_lie_on_the_surface_and_the_final_cloud_is_reconstructs() {
+    let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+    let mut config = Config::default();
+    config.solve.max_anchor_poses = 40;
+    let (scan, frames) = path_frames(&camera, &config);
+    let mut solver = Incremental::new(
+        camera.clone(),
+        config.clone(),
+        IncrementalParams {
+            min_planes_first_solve: 40,
+            solve_growth: 1.5,
+        },
+        ScaleMode::Factor { factor: 1.0 },
+    );
+    let epochs = live_epochs(&mut solver, frames.clone());
+    assert!(epochs.len() >= 2, "{} epochs", epochs.len());
+    // Nearly every live point on the surface. Not every one: an epoch made on the
+    // evidence of a partial sweep (when it is made depends on the machine's load)
+    // can place a few of the newest frames a few per cent off (the known limit).
+    let (off, all) = epochs.iter().fold((0, 0), |(off, all), e| {
+        (
+            off + points_off(&scan.scene, &e.cloud, 1e-3),
+            all + e.cloud.len(),
+        )
+    });
+    assert!(off * 50 < all, "{off} of {all} live points off the surface");
+    let (off, all) = epochs.iter().fold((0, 0), |(off, all), e| {
+        let both: Vec<Point> = e.cloud.iter().chain(&e.placed).copied().collect();
+        (
+            off + points_off(&scan.scene, &both, 1e-3) - points_off(&scan.scene, &e.cloud, 1e-3),
+            all + e.placed.len(),
+        )
+    });
+    assert!(all > 0, "no frame placed against an epoch");
+    assert!(
+        off * 50 < all,
+        "{off} of {all} placed points off the surface"
+    );
+    let live = solver.finish().expect("final solve");
+    let offline = crate::pipeline::reconstruct_curves(
+        frames,
+        &camera,
+        &config,
+        PlaneSource::SelfCalibrated,
+        &ScaleMode::Factor { factor: 1.0 },
+        None,
+    )
+    .expect("offline");
+    assert!(live.cloud.len() > 10_000);
+    assert_eq!(live.cloud.points, offline.cloud.points);
+    assert_eq!(live.planes, offline.planes);
+}
+
+/// The final solve supersedes a running epoch's: that one is told to stop, so that
+/// the two do not share the CPU (on a one-CPU machine the final cloud came minutes
+/// late), and the final cloud is still made.
+#[test]
+fn the_final_solve_stops_an_epoch_still_running() {
+    let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+    let config = Config::default();
+    let (_, frames) = path_frames(&camera, &config);
+    let planes: usize = frames.iter().map(Vec::len).sum();
+    let mut solver = Incremental::new(
+        camera,
+        config,
+        IncrementalParams {
+            min_planes_first_solve: planes,
+            solve_growth: 10.0,
+        },
+        ScaleMode::Factor { factor: 1.0 },
+    );
+    for curves in frames {
+        solver.add_frame(curves, 0);
+    }
+    let running = solver
+        .pending
+        .as_ref()
+        .expect("a solve started")
+        .cancel
+        .clone();
+    assert!(!running.is_cancelled());
+    let rec = solver.finish().expect("final solve");
+    assert!(
+        running.is_cancelled(),
+        "the epoch's solve was not told to stop"
+    );
+    assert!(rec.cloud.len() > 10_000, "{} points", rec.cloud.len());
+}
