@@ -65,6 +65,11 @@ pub enum PlaneSource<'a> {
     /// linear start (evaluation: from a simulation's truth it shows what the crossings
     /// determine when the start is perfect).
     StartedFrom(&'a [[Option<Vector3<f64>>; 2]]),
+    /// Self-calibration with these planes per frame and laser (an earlier estimate's: the
+    /// daemon's last epoch) as one more start beside its own two
+    /// ([`crate::solve::calibrate_until`]); where they lead to the solution the cold
+    /// starts find, the answer is the cold one, as with [`Self::SelfCalibrated`].
+    AlsoFrom(&'a [[Option<Vector3<f64>>; 2]]),
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -331,25 +336,32 @@ pub fn reconstruct_scan(
         dense_threads: solve::dense::DenseThreads(rayon::current_num_threads()),
         ..config.solve.clone()
     };
+    // Per plane of the evidence, the given planes of its frame and laser.
+    let start_of = |given: &[[Option<Vector3<f64>>; 2]]| -> Vec<Option<Vector3<f64>>> {
+        evidence
+            .planes
+            .iter()
+            .map(|slot| {
+                let frame = evidence.pose_frames[slot.pose as usize] as usize;
+                given
+                    .get(frame)
+                    .and_then(|f| f[usize::from(slot.laser & 1)])
+            })
+            .collect()
+    };
     let calibration = match source {
         PlaneSource::SelfCalibrated => Some(solve::calibrate(&evidence, &solve_params)?),
-        PlaneSource::StartedFrom(known) => {
-            let start: Vec<Option<Vector3<f64>>> = evidence
-                .planes
-                .iter()
-                .map(|slot| {
-                    let frame = evidence.pose_frames[slot.pose as usize] as usize;
-                    known
-                        .get(frame)
-                        .and_then(|f| f[usize::from(slot.laser & 1)])
-                })
-                .collect();
-            Some(solve::calibrate_from(
-                &evidence,
-                &solve_params,
-                Some(&start),
-            )?)
-        }
+        PlaneSource::StartedFrom(known) => Some(solve::calibrate_from(
+            &evidence,
+            &solve_params,
+            Some(&start_of(known)),
+        )?),
+        PlaneSource::AlsoFrom(earlier) => Some(solve::calibrate_until(
+            &evidence,
+            &solve_params,
+            Some(&start_of(earlier)),
+            &solve::Cancel::default(),
+        )?),
         PlaneSource::Known(_) => None,
     };
     let planes = match (&calibration, source) {

@@ -25,9 +25,13 @@
 //!   (An earlier attempt fitted each plane on its own against the anchors' planes, with
 //!   no uncertainty of theirs, and placed a few frames of a synthetic sweep 7-9 % off.)
 //! - At the end, [`Incremental::finish`] runs the offline pipeline's final stages on the
-//!   same scan ([`crate::pipeline::reconstruct_scan`]), so the final cloud is exactly
-//!   what `crossline reconstruct` makes of the same curves, whatever the order and
-//!   timing of the live epochs were.
+//!   same scan ([`crate::pipeline::reconstruct_scan`]), its two cold starts and the last
+//!   epoch's planes as a third. Where the third leads to the solution the cold starts
+//!   find, the cold one is kept, so the final cloud is exactly what `crossline
+//!   reconstruct` makes of the same curves, whatever the order and timing of the live
+//!   epochs were. Where the cold starts settle in a worse solution (clutter seed 14 as
+//!   an MJPEG dump: refused offline) and the epochs' leads to a better one, the daemon
+//!   gives the better cloud, which then depends on its epochs.
 
 use std::sync::Arc;
 
@@ -353,20 +357,27 @@ impl Incremental {
         ))
     }
 
-    /// The final solve over every curve, exactly as `crossline reconstruct` does it on
-    /// the same scan. Afterwards no more frames can be added.
+    /// The final solve over every curve, as `crossline reconstruct` does it on the same
+    /// scan, with the last epoch's planes as one more start: where they lead to the
+    /// solution the cold starts find, the cloud is `reconstruct`'s to the last bit; where
+    /// the cold starts settle in a worse solution and the epoch's planes lead to a
+    /// better one, the better one wins. Afterwards no more frames can be added.
     pub fn finish(&mut self) -> Result<Reconstruction, ReconstructError> {
         // A background solve still running is superseded.
         self.pending = None;
-        self.current = None;
+        let earlier = self.current.take().map(|e| self.epoch_planes(&e));
         self.backlog = 0..0;
         let scan = std::mem::replace(&mut self.scan, Scan::new(&self.camera, &self.config));
+        let source = match &earlier {
+            Some(planes) => PlaneSource::AlsoFrom(planes),
+            None => PlaneSource::SelfCalibrated,
+        };
         let rec = pipeline::reconstruct_scan(
             scan,
             self.counts.crossings_s,
             &self.camera,
             &self.config,
-            PlaneSource::SelfCalibrated,
+            source,
             &self.scale,
             self.colour.as_deref(),
         )?;
@@ -376,6 +387,17 @@ impl Incremental {
         self.counts.planes_solved = rec.report.planes_solved as u64;
         self.counts.planes_in_global_solve = rec.report.planes_in_global_solve as u64;
         Ok(rec)
+    }
+
+    /// An epoch's planes per frame and laser of the scan.
+    fn epoch_planes(&self, e: &Estimate) -> Vec<[Option<nalgebra::Vector3<f64>>; 2]> {
+        let mut out = vec![[None; 2]; self.scan.frames()];
+        for (plane, k) in self.scan.planes().iter().zip(&e.plane_index) {
+            if let (Some(k), Some(slot)) = (k, out.get_mut(plane.frame as usize)) {
+                slot[usize::from(plane.laser & 1)] = e.calibration.plane(*k as usize);
+            }
+        }
+        out
     }
 
     pub fn epoch(&self) -> u32 {

@@ -20,7 +20,7 @@
 use nalgebra::Vector3;
 use serde::Serialize;
 
-use super::choose::{best_of, least_cost, score};
+use super::choose::{best_of_preferring, least_cost, score};
 pub use super::choose::{Alternative, AMBIGUOUS_CHI2};
 use super::conditional::{self, AnchorSplit};
 use super::estimate::{self, Estimate, EstimateParams, Spreads, Start};
@@ -351,14 +351,21 @@ fn calibrate_with(
         let estimates = refine_starts(sub, &planes, 1.0, 0.1, &eparams)?;
         Ok((super::Solution::empty(), planes, estimates))
     };
+    // The estimates from the warm start, which give way to a cold one of the same solution.
+    let mut second = 0..0;
     let (cold, (start, planes, mut estimates)) = match from {
         StartFrom::Starts => (true, two_starts(evidence, &split, params, &eparams)?),
         StartFrom::Only(planes) => (false, given(planes)?),
         StartFrom::AlsoFrom(planes) => {
-            let warm = given(planes);
-            match two_starts(evidence, &split, params, &eparams) {
+            // Side by side: neither depends on the other.
+            let (warm, cold) = rayon::join(
+                || given(planes),
+                || two_starts(evidence, &split, params, &eparams),
+            );
+            match cold {
                 Ok((start, planes, mut estimates)) => {
                     if let Ok((_, _, w)) = warm {
+                        second = estimates.len()..estimates.len() + w.len();
                         estimates.extend(w);
                     }
                     (true, (start, planes, estimates))
@@ -384,7 +391,7 @@ fn calibrate_with(
         );
     }
     cancel.check()?;
-    let (est, alternatives) = best_of(sub, estimates, &eparams)
+    let (est, alternatives) = best_of_preferring(sub, estimates, &eparams, second)
         .ok_or(SolveError::Degenerate("no start for the joint estimate"))?;
     let est = super::folds::reseed_folds(sub, est, &eparams);
     cancel.check()?;

@@ -33,16 +33,41 @@ pub const AMBIGUOUS_CHI2: f64 = 11.34;
 
 /// The estimate among `estimates` that explains the evidence best ([`score`]), and how
 /// each other one compares with it.
+#[cfg(test)]
 pub(crate) fn best_of(
+    evidence: &Evidence,
+    estimates: Vec<Estimate>,
+    params: &EstimateParams,
+) -> Option<(Estimate, Vec<Alternative>)> {
+    best_of_preferring(evidence, estimates, params, 0..0)
+}
+
+/// [`best_of`], where the estimates in `second` (those from an earlier estimate's
+/// planes) give way to any other that is the same solution: found by the cold starts
+/// alone, the answer is the one `reconstruct` gives, to the last bit.
+pub(crate) fn best_of_preferring(
     evidence: &Evidence,
     mut estimates: Vec<Estimate>,
     params: &EstimateParams,
+    second: std::ops::Range<usize>,
 ) -> Option<(Estimate, Vec<Alternative>)> {
-    let k = least_cost(evidence, &estimates, params)?;
-    let best = estimates.swap_remove(k);
-    let base = score(evidence, &best, params);
+    let mut k = least_cost(evidence, &estimates, params)?;
     // The same solution, found twice: its depths within the estimate's own deviation, or
     // in the same basin of the cost (two starts rarely stop at one point).
+    let same_as = |a: &Estimate, b: &Estimate| {
+        depth_difference(evidence, a, b) <= 3.0 * median_crossing_sigma(evidence, a)
+            || same_basin(evidence, a, b, params)
+    };
+    if second.contains(&k) {
+        if let Some(j) = (0..estimates.len())
+            .filter(|j| !second.contains(j))
+            .find(|&j| same_as(&estimates[k], &estimates[j]))
+        {
+            k = j;
+        }
+    }
+    let best = estimates.swap_remove(k);
+    let base = score(evidence, &best, params);
     let same = 3.0 * median_crossing_sigma(evidence, &best);
     let mut alternatives: Vec<Alternative> = estimates
         .iter()

@@ -560,6 +560,58 @@ fn a_cancelled_solve_stops_and_says_so() {
     }
 }
 
+/// Two stops of the minimisation in one basin (from the true planes, and from them
+/// turned by a few milliradians) are one solution: whichever of the two is marked as
+/// from an earlier estimate gives way to the other, whatever their scores. That is what
+/// keeps the daemon's final cloud `reconstruct`'s when its last epoch leads to the same
+/// solution.
+#[test]
+fn a_warm_estimate_of_the_same_solution_gives_way_to_the_cold_one() {
+    let scan = path_scan(&PathSpec {
+        frames: 30,
+        ..PathSpec::default()
+    });
+    let ev = evidence_of(&scan, 0.1, 4, |_, _| true);
+    let params = EstimateParams::default();
+    let mut rng = Rng::new(3);
+    let estimates: Vec<_> = [0.0, 0.003]
+        .iter()
+        .map(|&turn| {
+            let planes: Vec<Option<V3>> = scan
+                .flat_planes()
+                .iter()
+                .map(|v| {
+                    let axis = V3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
+                    Some(Rotation3::new(axis * turn) * v)
+                })
+                .collect();
+            let (poses, _) = super::init::poses_from_planes(&ev, &planes).expect("poses");
+            let start = Start {
+                poses,
+                focal_scale: 1.0,
+                spreads: spreads(0.1),
+            };
+            estimate(&ev, &start, &params).expect("estimate")
+        })
+        .collect();
+    assert_ne!(
+        estimates[0].poses[0].plane(0),
+        estimates[1].poses[0].plane(0),
+        "the two stops must differ for the test to say anything"
+    );
+    for marked in 0..2 {
+        let (best, _) =
+            super::choose::best_of_preferring(&ev, estimates.clone(), &params, marked..marked + 1)
+                .expect("a best one");
+        let other = &estimates[1 - marked];
+        assert_eq!(
+            best.poses[0].plane(0),
+            other.poses[0].plane(0),
+            "with estimate {marked} marked as warm, the other must win"
+        );
+    }
+}
+
 /// An epoch's warm start is one candidate among the cold starts, not the answer: started
 /// from planes far from any solution (another hand path's), the live solve still finds
 /// the cold solve's planes. Started from them alone (as epochs were), it settles
