@@ -2,7 +2,7 @@
 //! estimate of every pose, on noisy analytic crossings of the synthetic room.
 
 use super::calibrate::{calibrate, Calibration, PlaneVerdict};
-use super::estimate_tests::evidence_of;
+use super::estimate_tests::{anchored_every, evidence_of};
 use super::evidence::Evidence;
 use super::synthetic::{path_scan, PathSpec};
 use super::SolveParams;
@@ -55,14 +55,7 @@ fn poses_fitted_against_anchors_know_how_well_they_are_known() {
     });
     let truth = scan.flat_planes();
     let all = evidence_of(&scan, 0.1, 3, |_, _| true);
-    let mut ev = all.clone();
-    ev.anchors = (0..ev.num_poses()).map(|p| p % 3 == 0).collect();
-    // As the scan finds them: no crossing of two frames that are both not anchors.
-    let (planes, anchors) = (ev.planes.clone(), ev.anchors.clone());
-    ev.crossings.retain(|c| {
-        let (pa, pb) = (planes[c.a as usize].pose, planes[c.b as usize].pose);
-        pa == pb || anchors[pa as usize] || anchors[pb as usize]
-    });
+    let ev = anchored_every(all.clone(), 3);
     let params = SolveParams::default();
     let joint = calibrate(&all, &params).expect("joint");
     let anchored = calibrate(&ev, &params).expect("anchored");

@@ -22,6 +22,33 @@ pub(super) fn evidence_of(
     super::synthetic::path_evidence(scan, FOCAL_PX, noise_px, seed, keep)
 }
 
+/// The joint estimate of `ev` started from `planes` (at focal scale 1, spreads 0.1 px).
+fn estimate_from_planes(
+    ev: &Evidence,
+    planes: &[Option<V3>],
+    params: &EstimateParams,
+) -> super::estimate::Estimate {
+    let (poses, _) = super::init::poses_from_planes(ev, planes).expect("poses");
+    let start = Start {
+        poses,
+        focal_scale: 1.0,
+        spreads: spreads(0.1),
+    };
+    estimate(ev, &start, params).expect("estimate")
+}
+
+/// `ev` with every `k`-th pose an anchor and, as the scan finds them, no crossing of two
+/// frames that are both not anchors.
+pub(super) fn anchored_every(mut ev: Evidence, k: usize) -> Evidence {
+    ev.anchors = (0..ev.num_poses()).map(|p| p % k == 0).collect();
+    let (planes, anchors) = (ev.planes.clone(), ev.anchors.clone());
+    ev.crossings.retain(|c| {
+        let (pa, pb) = (planes[c.a as usize].pose, planes[c.b as usize].pose);
+        pa == pb || anchors[pa as usize] || anchors[pb as usize]
+    });
+    ev
+}
+
 /// The true poses of `scan`, their normals signed to turn smoothly.
 fn true_poses(scan: &PathScan) -> Vec<CrossPose> {
     let mut poses: Vec<CrossPose> = scan
@@ -408,13 +435,7 @@ fn two_w_solutions_are_detected() {
         .iter()
         .map(|m| {
             let planes: Vec<Option<V3>> = v0.iter().map(|v| Some(v + m.w)).collect();
-            let (poses, _) = super::init::poses_from_planes(&ev, &planes).expect("poses");
-            let start = Start {
-                poses,
-                focal_scale: 1.0,
-                spreads: spreads(0.1),
-            };
-            estimate(&ev, &start, &params).expect("estimate")
+            estimate_from_planes(&ev, &planes, &params)
         })
         .collect();
     let (best, alternatives) = super::choose::best_of(&ev, estimates, &params).expect("a best one");
@@ -585,13 +606,7 @@ fn a_warm_estimate_of_the_same_solution_gives_way_to_the_cold_one() {
                     Some(Rotation3::new(axis * turn) * v)
                 })
                 .collect();
-            let (poses, _) = super::init::poses_from_planes(&ev, &planes).expect("poses");
-            let start = Start {
-                poses,
-                focal_scale: 1.0,
-                spreads: spreads(0.1),
-            };
-            estimate(&ev, &start, &params).expect("estimate")
+            estimate_from_planes(&ev, &planes, &params)
         })
         .collect();
     assert_ne!(

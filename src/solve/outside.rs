@@ -136,7 +136,7 @@ pub fn fit_outside(
 mod tests {
     use super::*;
     use crate::solve::calibrate::calibrate;
-    use crate::solve::estimate_tests::evidence_of;
+    use crate::solve::estimate_tests::{anchored_every, evidence_of};
     use crate::solve::synthetic::{path_scan, PathSpec};
     use crate::solve::SolveParams;
 
@@ -150,13 +150,7 @@ mod tests {
             frames: 60,
             ..PathSpec::default()
         });
-        let mut ev = evidence_of(&scan, 0.1, 7, |_, _| true);
-        ev.anchors = (0..ev.num_poses()).map(|p| p % 3 == 0).collect();
-        let (planes, anchors) = (ev.planes.clone(), ev.anchors.clone());
-        ev.crossings.retain(|c| {
-            let (pa, pb) = (planes[c.a as usize].pose, planes[c.b as usize].pose);
-            pa == pb || anchors[pa as usize] || anchors[pb as usize]
-        });
+        let ev = anchored_every(evidence_of(&scan, 0.1, 7, |_, _| true), 3);
         let params = SolveParams::default();
         let cal = calibrate(&ev, &params).expect("calibration");
         let est = &cal.estimate;
