@@ -12,7 +12,7 @@ use crate::config::Config;
 use crate::solve::estimate::EstimateParams;
 use crate::solve::evidence::Evidence;
 use crate::solve::outside::{self, Link, OutsideFit};
-use crate::solve::pose::{CrossPose, POSE_DOF};
+use crate::solve::pose::CrossPose;
 use crate::solve::Calibration;
 
 impl Record {
@@ -82,23 +82,14 @@ pub struct Placing {
 impl Placing {
     pub fn new(calibration: &Calibration, config: &Config) -> Self {
         let est = &calibration.estimate;
-        let mut frames = vec![0; est.covariance.nrows() / POSE_DOF];
-        for (p, j) in est.joint_of_pose.iter().enumerate() {
-            if let (Some(j), Some(&f)) = (j, calibration.evidence.pose_frames.get(p)) {
-                if let Some(slot) = frames.get_mut(*j as usize) {
-                    *slot = f;
-                }
-            }
-        }
-        let joint = outside::joint_poses(est);
-        frames.truncate(joint.len());
+        let order = outside::joint_order(est);
         Self {
-            joint,
-            joint_frames: frames,
-            params: EstimateParams {
-                estimate_focal: config.solve.estimate_focal,
-                ..EstimateParams::default()
-            },
+            joint: order.iter().map(|&p| est.poses[p]).collect(),
+            joint_frames: order
+                .iter()
+                .map(|&p| calibration.evidence.pose_frames[p])
+                .collect(),
+            params: config.solve.estimate_params(),
         }
     }
 

@@ -144,19 +144,19 @@ impl Scan {
     }
 
     pub fn frames(&self) -> usize {
-        self.record.frames
+        self.record.frames()
     }
 
     pub(crate) fn planes(&self) -> &[Arc<PlaneCurves>] {
-        &self.record.planes
+        self.record.planes()
     }
 
     pub fn num_curves(&self) -> usize {
-        self.record.curve_plane.len()
+        self.record.num_curves()
     }
 
     pub fn num_crossings(&self) -> usize {
-        self.record.crossings.len()
+        self.record.num_crossings()
     }
 
     /// What the scan has seen so far.
@@ -178,15 +178,15 @@ impl Scan {
     /// Adds the next frame's curves: its planes, and their crossings (see the module
     /// docs; not yet refined).
     pub fn add_frame(&mut self, curves: Vec<Curve>) {
-        let frame = self.record.frames as u32;
-        self.record.frames += 1;
         let record = &mut self.record;
+        let frame = record.frames as u32;
+        record.frames += 1;
         record.frame_first_plane.push(record.planes.len() as u32);
         record
             .frame_first_crossing
             .push(record.crossings.len() as u32);
-        self.record.frames_with_curves += usize::from(!curves.is_empty());
-        let admission = self.record.anchors.next_frame(!curves.is_empty());
+        record.frames_with_curves += usize::from(!curves.is_empty());
+        let admission = record.anchors.next_frame(!curves.is_empty());
         if admission.thinned {
             self.rebuild_anchor_index();
         }

@@ -1,6 +1,6 @@
 //! One live epoch, made on a thread of its own (`solver-epoch`) from a snapshot of the
-//! scan ([`crate::pipeline::Record`]): the estimator's evidence, its solve warm-started
-//! from the last epoch, the triangulation of every plane it determines and the offline
+//! scan ([`crate::pipeline::Record`]): the estimator's evidence, its solve (the two cold
+//! starts and the last epoch's planes), the triangulation of every plane it determines and the offline
 //! checks on them. The solver thread only hands the snapshot over and, later, sends the
 //! points: building the evidence and triangulating an epoch of millions of points took
 //! it up to 1.7 s at a time, while the workers' queue to it and then the capture ring
@@ -30,6 +30,14 @@ pub(super) struct Estimate {
     pub placing: Placing,
     /// The scale factor of its cloud, which the frames placed against it share.
     pub factor: f64,
+}
+
+impl Estimate {
+    /// The plane of the scan's plane `i` (`v · r = 1/Z`), where this estimate determines it.
+    pub fn scan_plane(&self, i: usize) -> Option<Vector3<f64>> {
+        let k = (*self.plane_index.get(i)?)?;
+        self.calibration.plane(k as usize)
+    }
 }
 
 /// An epoch ready to adopt: its estimate and its scaled cloud.
@@ -102,8 +110,8 @@ fn make(job: Job, cancel: &solve::Cancel) -> Result<Answer, NotAdopted> {
     let warm: Option<Vec<Option<Vector3<f64>>>> = warm.map(|e| {
         let mut start = vec![None; evidence.planes.len()];
         for (i, k) in plane_index.iter().enumerate() {
-            if let (Some(k), Some(Some(old))) = (k, e.plane_index.get(i)) {
-                start[*k as usize] = e.calibration.plane(*old as usize);
+            if let Some(k) = k {
+                start[*k as usize] = e.scan_plane(i);
             }
         }
         start

@@ -392,9 +392,9 @@ impl Incremental {
     /// An epoch's planes per frame and laser of the scan.
     fn epoch_planes(&self, e: &Estimate) -> Vec<[Option<nalgebra::Vector3<f64>>; 2]> {
         let mut out = vec![[None; 2]; self.scan.frames()];
-        for (plane, k) in self.scan.planes().iter().zip(&e.plane_index) {
-            if let (Some(k), Some(slot)) = (k, out.get_mut(plane.frame as usize)) {
-                slot[usize::from(plane.laser & 1)] = e.calibration.plane(*k as usize);
+        for (i, plane) in self.scan.planes().iter().enumerate() {
+            if let Some(slot) = out.get_mut(plane.frame as usize) {
+                slot[usize::from(plane.laser & 1)] = e.scan_plane(i);
             }
         }
         out

@@ -341,10 +341,8 @@ fn calibrate_with(
     let split = AnchorSplit::of(evidence);
     let sub = &split.evidence;
     let eparams = EstimateParams {
-        estimate_focal: params.estimate_focal,
         cancel: cancel.clone(),
-        threads: params.dense_threads,
-        ..EstimateParams::default()
+        ..params.estimate_params()
     };
     let given = |planes: &[Option<V3>]| -> Result<Starts, SolveError> {
         let planes = split.planes_of(&extended(evidence, planes));

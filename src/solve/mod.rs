@@ -235,6 +235,18 @@ impl Default for SolveParams {
     }
 }
 
+impl SolveParams {
+    /// The joint estimator's settings these make (never cancelled): one place, so that
+    /// a pose fitted after the estimate ([`outside`]) is fitted as the estimate's own.
+    pub fn estimate_params(&self) -> estimate::EstimateParams {
+        estimate::EstimateParams {
+            estimate_focal: self.estimate_focal,
+            threads: self.dense_threads,
+            ..estimate::EstimateParams::default()
+        }
+    }
+}
+
 /// The crossings of a scan and which curves form a cross.
 #[derive(Clone, Copy, Debug)]
 pub struct Problem<'a> {

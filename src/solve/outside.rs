@@ -33,7 +33,6 @@ pub struct Link {
 #[derive(Clone, Debug)]
 pub struct OutsideFit {
     pub pose: CrossPose,
-    pub focal_scale: f64,
     pub marginal: PoseMarginal,
     pub scatter: PoseMarginal,
     pub scatter_crossings: usize,
@@ -64,19 +63,20 @@ impl OutsideFit {
     }
 }
 
-/// The joint poses of `est`, in the order of its covariance.
-pub fn joint_poses(est: &Estimate) -> Vec<CrossPose> {
-    let mut out: Vec<(u32, CrossPose)> = est
+/// The poses of `est` estimated jointly, as their indices among its poses, in the order
+/// of its covariance.
+pub fn joint_order(est: &Estimate) -> Vec<usize> {
+    let mut out: Vec<(u32, usize)> = est
         .joint_of_pose
         .iter()
-        .zip(&est.poses)
-        .filter_map(|(j, p)| Some(((*j)?, *p)))
+        .enumerate()
+        .filter_map(|(p, j)| Some(((*j)?, p)))
         .collect();
-    out.sort_unstable_by_key(|(j, _)| *j);
+    out.sort_unstable();
     out.into_iter().map(|(_, p)| p).collect()
 }
 
-/// A pose fitted from `links` against the joint poses `joint` ([`joint_poses`]) of the
+/// A pose fitted from `links` against the joint poses `joint` (in [`joint_order`]) of the
 /// finished estimate `est` of `ev`; `nearest`, the joint pose nearest in time, is one
 /// start. `None` when nothing fixes it.
 pub fn fit_outside(
@@ -124,7 +124,6 @@ pub fn fit_outside(
     let verdicts = counts.map(|(total, bad)| PlaneVerdict::of_counts(total, bad));
     Some(OutsideFit {
         pose: fit.pose,
-        focal_scale: lambda,
         marginal: fit.marginal,
         scatter: fit.scatter,
         scatter_crossings: fit.scatter_crossings,
@@ -154,11 +153,8 @@ mod tests {
         let params = SolveParams::default();
         let cal = calibrate(&ev, &params).expect("calibration");
         let est = &cal.estimate;
-        let joint = joint_poses(est);
-        let eparams = EstimateParams {
-            estimate_focal: params.estimate_focal,
-            ..EstimateParams::default()
-        };
+        let joint: Vec<CrossPose> = joint_order(est).iter().map(|&p| est.poses[p]).collect();
+        let eparams = params.estimate_params();
         let mut compared = 0;
         for f in (0..ev.num_poses()).filter(|&f| !ev.is_anchor(f)) {
             let links: Vec<Link> = ev
