@@ -121,7 +121,20 @@ pub(crate) fn cloud(
 ) -> CloudOut {
     let rule = PlaneRule { planes };
     let params = &config.triangulate;
-    let plane_of: Vec<Option<V3>> = (0..scan.planes().len()).map(|i| rule.plane(i)).collect();
+    // The planes that matter: those triangulated and those their crossings are with (a
+    // frame placed live needs a few of the scan's thousands).
+    let mut needed = vec![false; scan.planes().len()];
+    needed[only.clone()].fill(true);
+    for c in curve_crossings {
+        for cid in [c.a, c.b] {
+            needed[scan.curve_plane[cid as usize] as usize] = true;
+        }
+    }
+    let plane_of: Vec<Option<V3>> = needed
+        .iter()
+        .enumerate()
+        .map(|(i, &n)| n.then(|| rule.plane(i)).flatten())
+        .collect();
     // The crossing check on the corrected rays.
     let curve_planes: Vec<Option<V3>> = scan
         .curve_plane
