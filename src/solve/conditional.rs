@@ -390,6 +390,22 @@ pub(super) struct Fitted {
     pub marginal: PoseMarginal,
     pub scatter: PoseMarginal,
     pub scatter_crossings: usize,
+}
+
+/// A pose fitted on its ties, before the anchors' uncertainty is propagated into it
+/// ([`PoseFit::propagated`]): the pose's own information and its blocks with the anchors.
+struct PoseFit {
+    pose: CrossPose,
+    cost: f64,
+    /// `H_ff⁻¹`, the noise part of the pose's covariance.
+    h_inv: M6,
+    /// The scatter's `C_ff`: the ties' residual directions, robustly weighted.
+    c: M6,
+    /// `H_fA` by anchor pose.
+    blocks: Vec<(usize, M6)>,
+    /// `H_fλ`, the focal scale's column.
+    b_focal: V6,
+    scatter_crossings: usize,
     /// Per tie: its class and its size standardised by its own
     /// redundancy, `|e| / √(1 − w h)` (pixels).
     standardised: Vec<(usize, f64)>,
@@ -406,6 +422,19 @@ pub(super) fn fit_ties(
     ties: &[Tie],
     nearest: Option<CrossPose>,
 ) -> Option<Fitted> {
+    let fit = fit_pose(ev, anchors, lambda, params, ties, nearest)?;
+    Some(fit.propagated(cov, params.estimate_focal))
+}
+
+/// The pose of [`fit_ties`] and its information, without the anchors' uncertainty.
+fn fit_pose(
+    ev: &Evidence,
+    anchors: &[CrossPose],
+    lambda: f64,
+    params: &EstimateParams,
+    ties: &[Tie],
+    nearest: Option<CrossPose>,
+) -> Option<PoseFit> {
     if ties.is_empty() {
         return None;
     }
@@ -414,8 +443,6 @@ pub(super) fn fit_ties(
         .map(|s| minimise(s, ties, anchors, ev, lambda, params))
         .min_by(|a, b| a.cost.total_cmp(&b.cost))?;
     let loss = Loss::Cauchy(params.crossing_loss);
-    let n_a = cov.nrows();
-    let focal = params.estimate_focal.then(|| n_a - 1);
     // H_ff, H_fA (by anchor pose; the focal scale's column apart), the scatter's C_ff.
     let (mut h, mut c) = (M6::zeros(), M6::zeros());
     let mut blocks: Vec<(usize, M6)> = Vec::new();
@@ -455,59 +482,79 @@ pub(super) fn fit_ties(
             standardised.push((tie.class, t.e.abs() / r.sqrt()));
         }
     }
-    // B Σ_AA Bᵀ over the anchors touched (and the focal scale).
-    let mut idx: Vec<usize> = blocks
-        .iter()
-        .flat_map(|(a, _)| (0..POSE_DOF).map(move |i| a * POSE_DOF + i))
-        .collect();
-    let mut bcols: Vec<V6> = blocks
-        .iter()
-        .flat_map(|(_, b)| (0..POSE_DOF).map(move |i| b.column(i).into_owned()))
-        .collect();
-    if let Some(fi) = focal {
-        idx.push(fi);
-        bcols.push(b_focal);
-    }
-    // T = B Σ[idx, :] restricted to idx columns, then M = T Bᵀ; and B Σ[idx, λ].
-    let mut m = M6::zeros();
-    let mut b_sigma_focal = V6::zeros();
-    for (s, &is) in idx.iter().enumerate() {
-        let col = cov.col_as_slice(is);
-        let mut t = V6::zeros();
-        for (r, &ir) in idx.iter().enumerate() {
-            t += bcols[r] * col[ir];
-        }
-        m += t * bcols[s].transpose();
-        if let Some(fi) = focal {
-            b_sigma_focal += bcols[s] * cov[(is, fi)];
-        }
-    }
-    let cov_ff = h_inv + h_inv * m * h_inv;
-    let mut marginal = PoseMarginal::zeros();
-    marginal.fixed_view_mut::<6, 6>(0, 0).copy_from(&cov_ff);
-    if let Some(fi) = focal {
-        let cross = -(h_inv * b_sigma_focal);
-        for i in 0..6 {
-            marginal[(i, 6)] = cross[i];
-            marginal[(6, i)] = cross[i];
-        }
-        marginal[(6, 6)] = cov[(fi, fi)];
-    }
-    let mut c7 = PoseMarginal::zeros();
-    c7.fixed_view_mut::<6, 6>(0, 0).copy_from(&c);
-    Some(Fitted {
+    Some(PoseFit {
         pose: best.pose,
         cost: best.cost,
-        marginal,
-        scatter: marginal * c7 * marginal,
+        h_inv,
+        c,
+        blocks,
+        b_focal,
         scatter_crossings: counted,
         standardised,
     })
 }
 
+impl PoseFit {
+    /// The fit with the anchors' covariance `cov` propagated into its own:
+    /// `H_ff⁻¹ + H_ff⁻¹ (B Σ_AA Bᵀ) H_ff⁻¹`, `B = H_fA` over the anchors it touches (and
+    /// the focal scale, the last unknown of `cov`, when it is estimated).
+    fn propagated(self, cov: &Mat<f64>, estimate_focal: bool) -> Fitted {
+        let h_inv = self.h_inv;
+        let focal = estimate_focal.then(|| cov.nrows() - 1);
+        let mut idx: Vec<usize> = self
+            .blocks
+            .iter()
+            .flat_map(|(a, _)| (0..POSE_DOF).map(move |i| a * POSE_DOF + i))
+            .collect();
+        let mut bcols: Vec<V6> = self
+            .blocks
+            .iter()
+            .flat_map(|(_, b)| (0..POSE_DOF).map(move |i| b.column(i).into_owned()))
+            .collect();
+        if let Some(fi) = focal {
+            idx.push(fi);
+            bcols.push(self.b_focal);
+        }
+        // T = B Σ[idx, :] restricted to idx columns, then M = T Bᵀ; and B Σ[idx, λ].
+        let mut m = M6::zeros();
+        let mut b_sigma_focal = V6::zeros();
+        for (s, &is) in idx.iter().enumerate() {
+            let col = cov.col_as_slice(is);
+            let mut t = V6::zeros();
+            for (r, &ir) in idx.iter().enumerate() {
+                t += bcols[r] * col[ir];
+            }
+            m += t * bcols[s].transpose();
+            if let Some(fi) = focal {
+                b_sigma_focal += bcols[s] * cov[(is, fi)];
+            }
+        }
+        let cov_ff = h_inv + h_inv * m * h_inv;
+        let mut marginal = PoseMarginal::zeros();
+        marginal.fixed_view_mut::<6, 6>(0, 0).copy_from(&cov_ff);
+        if let Some(fi) = focal {
+            let cross = -(h_inv * b_sigma_focal);
+            for i in 0..6 {
+                marginal[(i, 6)] = cross[i];
+                marginal[(6, i)] = cross[i];
+            }
+            marginal[(6, 6)] = cov[(fi, fi)];
+        }
+        let mut c7 = PoseMarginal::zeros();
+        c7.fixed_view_mut::<6, 6>(0, 0).copy_from(&self.c);
+        Fitted {
+            pose: self.pose,
+            cost: self.cost,
+            marginal,
+            scatter: marginal * c7 * marginal,
+            scatter_crossings: self.scatter_crossings,
+        }
+    }
+}
+
 /// The spreads of the crossings as the fitted frames show them: per class, the larger of
 /// `spreads` and 1.4826 times the median standardised residual.
-fn shown_spreads(fitted: &[Option<Fitted>], spreads: &Spreads) -> Spreads {
+fn shown_spreads(fitted: &[Option<PoseFit>], spreads: &Spreads) -> Spreads {
     let mut out = *spreads;
     for (class, slot) in out.crossing_px.iter_mut().enumerate() {
         let sizes: Vec<f64> = fitted
@@ -554,15 +601,14 @@ pub fn complete(
             .min()
             .map(|(_, a)| anchor_est.poses[a])
     };
-    let fit_all = |spreads: &Spreads| -> Vec<Option<Fitted>> {
+    let fit_all = |spreads: &Spreads| -> Vec<Option<PoseFit>> {
         (0..ev.num_poses())
             .into_par_iter()
             .map(|f| match split.anchor_of_pose[f] {
                 Some(_) => None,
-                None => fit_ties(
+                None => fit_pose(
                     ev,
                     &anchor_est.poses,
-                    &anchor_est.covariance,
                     anchor_est.focal_scale,
                     params,
                     &ties_of(ev, split, &anchor_est, spreads, &by_pose[f], f),
@@ -572,16 +618,21 @@ pub fn complete(
             .collect()
     };
     let mut spreads = anchor_est.spreads;
-    let mut fitted = fit_all(&spreads);
+    let mut fits = fit_all(&spreads);
     // The anchors measured the spreads on their own crossings; where the other frames'
     // crossings show more (a few anchors absorb part of their own noise), the fits are
-    // repeated at what they show.
-    let shown = shown_spreads(&fitted, &spreads);
+    // repeated at what they show. The anchors' uncertainty is propagated into the fits
+    // that stay only.
+    let shown = shown_spreads(&fits, &spreads);
     if (0..2).any(|c| shown.crossing_px[c] > (1.0 + SPREAD_SETTLED) * spreads.crossing_px[c]) {
         tracing::debug!(?shown, anchors = ?spreads, "the fitted frames' crossings are wider spread than the anchors'");
         spreads = shown;
-        fitted = fit_all(&spreads);
+        fits = fit_all(&spreads);
     }
+    let fitted: Vec<Option<Fitted>> = fits
+        .into_par_iter()
+        .map(|fit| fit.map(|fit| fit.propagated(&anchor_est.covariance, params.estimate_focal)))
+        .collect();
     let unknown = PoseMarginal::from_diagonal_element(f64::INFINITY);
     let mut poses = Vec::with_capacity(ev.num_poses());
     let mut marginals = Vec::with_capacity(ev.num_poses());
