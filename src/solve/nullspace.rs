@@ -21,7 +21,8 @@
 use super::dense::{Cholesky, DenseThreads};
 use super::SolveError;
 use crate::intersect::Crossing;
-use nalgebra::{DMatrix, Vector3};
+use faer::Mat;
+use nalgebra::Vector3;
 
 /// Solution of the coplanarity system over a subset.
 #[derive(Clone, Debug)]
@@ -46,8 +47,8 @@ pub fn normal_matrix(
     crossings: &[Crossing],
     crossing_ids: &[usize],
     weights: &[f64],
-) -> DMatrix<f64> {
-    let mut nm = DMatrix::zeros(3 * n, 3 * n);
+) -> Mat<f64> {
+    let mut nm = Mat::<f64>::zeros(3 * n, 3 * n);
     for (&k, &w) in crossing_ids.iter().zip(weights) {
         let c = &crossings[k];
         let (Some(i), Some(j)) = (local[c.a as usize], local[c.b as usize]) else {
@@ -56,8 +57,11 @@ pub fn normal_matrix(
         let u = homog(c.u);
         let m = u * u.transpose() * w;
         for (r, s, sign) in [(i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)] {
-            let mut block = nm.fixed_view_mut::<3, 3>(3 * r, 3 * s);
-            block += m * sign;
+            for b in 0..3 {
+                for a in 0..3 {
+                    nm[(3 * r + a, 3 * s + b)] += m[(a, b)] * sign;
+                }
+            }
         }
     }
     nm
@@ -65,7 +69,7 @@ pub fn normal_matrix(
 
 /// Smallest eigenpairs of the gauge-shifted normal matrix `N'`, from a random start on
 /// one thread ([`null_space_from`]).
-pub fn null_space(nm: DMatrix<f64>) -> Result<NullSpace, SolveError> {
+pub fn null_space(nm: Mat<f64>) -> Result<NullSpace, SolveError> {
     null_space_from(nm, None, DenseThreads::default())
 }
 
@@ -79,7 +83,7 @@ pub fn null_space(nm: DMatrix<f64>) -> Result<NullSpace, SolveError> {
 /// round's), saves the iterations its smallest vector would need. Should the
 /// factorisation fail or the iteration not settle, the dense eigensolver answers.
 pub fn null_space_from(
-    mut nm: DMatrix<f64>,
+    mut nm: Mat<f64>,
     start: Option<&[Vector3<f64>]>,
     threads: DenseThreads,
 ) -> Result<NullSpace, SolveError> {
@@ -94,14 +98,13 @@ pub fn null_space_from(
     let rho = gauge_shift(&mut nm).ok_or(SolveError::Degenerate(
         "empty or non-finite coplanarity system",
     ))?;
-    let mat = faer::Mat::<f64>::from_fn(dim, dim, |i, j| nm[(i, j)]);
     let start: Option<Vec<f64>> = start.map(|v| v.iter().flat_map(|p| p.iter().copied()).collect());
-    let (v0, l0, l1) = match smallest_pairs(&mat, start.as_deref(), threads) {
+    let (v0, l0, l1) = match smallest_pairs(&nm, start.as_deref(), threads) {
         Some(pairs) => {
             let [v0, _] = pairs.vectors;
             (v0, pairs.values[0], pairs.values[1])
         }
-        None => smallest_dense(&mat)?,
+        None => smallest_dense(&nm)?,
     };
     let (l0, l1) = (l0 / rho, l1 / rho);
     if l1 < 1e-10 {
@@ -121,9 +124,9 @@ pub fn null_space_from(
 
 /// `N' = N + ρ G Gᵀ` in place (see the module docs); returns `ρ`, or `None` when `N`
 /// is empty or not finite.
-fn gauge_shift(nm: &mut DMatrix<f64>) -> Option<f64> {
+fn gauge_shift(nm: &mut Mat<f64>) -> Option<f64> {
     let n = nm.nrows() / 3;
-    let rho = nm.trace() / nm.nrows() as f64;
+    let rho = (0..nm.nrows()).map(|i| nm[(i, i)]).sum::<f64>() / nm.nrows() as f64;
     if !(rho > 0.0 && rho.is_finite()) {
         return None;
     }
@@ -348,7 +351,8 @@ mod tests {
             .map(|&k| 1.0 / homog(cr[k].u).norm_squared())
             .collect();
         let nm = normal_matrix(n, &sub.local, &cr, &ids, &w);
-        let ev = nm.clone().symmetric_eigen();
+        let dense = nalgebra::DMatrix::from_fn(3 * n, 3 * n, |i, j| nm[(i, j)]);
+        let ev = dense.clone().symmetric_eigen();
         let mut vals: Vec<f64> = ev.eigenvalues.iter().copied().collect();
         vals.sort_by(f64::total_cmp);
         let top = vals[vals.len() - 1];
@@ -367,9 +371,9 @@ mod tests {
         // True V and the gauge directions are annihilated.
         let v =
             nalgebra::DVector::from_iterator(3 * n, planes.iter().flat_map(|p| p.iter().copied()));
-        assert!((&nm * &v).norm() < 1e-10 * top * v.norm());
+        assert!((&dense * &v).norm() < 1e-10 * top * v.norm());
         let g = nalgebra::DVector::from_fn(3 * n, |i, _| if i % 3 == 1 { 1.0 } else { 0.0 });
-        assert!((&nm * &g).norm() < 1e-10 * top);
+        assert!((&dense * &g).norm() < 1e-10 * top);
 
         // The gauge-fixed solution is the truth minus its mean, up to scale.
         let ns = null_space(nm).expect("solvable");
@@ -429,10 +433,9 @@ mod tests {
             let w = vec![1.0; sub.crossings.len()];
             let mut nm = normal_matrix(n, &sub.local, &cr, &sub.crossings, &w);
             let rho = gauge_shift(&mut nm).expect("a system");
-            let mat = faer::Mat::<f64>::from_fn(3 * n, 3 * n, |i, j| nm[(i, j)]);
             let (v_it, l0_it, l1_it) =
-                smallest_by_inverse_iteration(&mat).expect("iteration settles");
-            let (v_d, l0_d, l1_d) = smallest_dense(&mat).expect("dense");
+                smallest_by_inverse_iteration(&nm).expect("iteration settles");
+            let (v_d, l0_d, l1_d) = smallest_dense(&nm).expect("dense");
             let dot: f64 = v_it.iter().zip(&v_d).map(|(a, b)| a * b).sum();
             assert!(
                 1.0 - dot.abs() < 1e-10,
