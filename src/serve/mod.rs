@@ -262,6 +262,10 @@ pub struct ServeReport {
     pub stream_dropped_clients: u64,
     pub cpu_seconds: f64,
     pub wall_seconds: f64,
+    /// The process's CPU time and the wall time from the start until the last frame was
+    /// processed, before the final solve: the load of live capture itself.
+    pub live_cpu_seconds: f64,
+    pub live_wall_seconds: f64,
     /// Why capture stopped early (a damaged recording, a failed device), if it did.
     pub capture_error: Option<String>,
     /// Why the checkpoint stopped during the scan (the scan went on), if it did.
@@ -297,6 +301,8 @@ impl ServeReport {
             stream_dropped_clients: hub.stats.dropped_clients.load(Ordering::Relaxed),
             cpu_seconds: 0.0,
             wall_seconds: started.elapsed().as_secs_f64(),
+            live_cpu_seconds: 0.0,
+            live_wall_seconds: 0.0,
             capture_error: None,
             checkpoint_error: None,
             reconstruction: None,
@@ -308,8 +314,8 @@ impl ServeReport {
 /// Version of [`ServeReport`]'s JSON. 2: `latency` counts only frames placed on
 /// arrival, `epoch_latency` and `final_cloud_after_last_frame_s` are new, and `live_solver` has `place_s`,
 /// `frames_placed_on_arrival` and `frames_placed_late` instead of `extend_s` and
-/// `triangulate_s`.
-pub const REPORT_VERSION: u32 = 2;
+/// `triangulate_s`. 3: `live_cpu_seconds` and `live_wall_seconds` are new.
+pub const REPORT_VERSION: u32 = 3;
 
 /// Stack of the extraction and solver threads: the detector's and the median's
 /// per-pixel work arrays live on the stack, more than the 2 MiB default.
@@ -470,6 +476,7 @@ pub fn run(
         started,
         first_index: resumed_frames,
     };
+    let mut live_load = (0.0, 0.0);
     let outcome = std::thread::scope(|s| {
         // Should a thread fail to start, `serving` is dropped and stops the listeners.
         let serving = listeners.spawn(s, &opts.camera, &cfg)?;
@@ -490,6 +497,7 @@ pub fn run(
             &background,
             resumed_frames,
         );
+        live_load = (cpu_seconds() - cpu_start, started.elapsed().as_secs_f64());
         flags.workers_stop.store(true, Ordering::Relaxed);
         let outcome = live.finish(&mut solver, &mut checkpoint, &mut reserve, &opts);
         notifier.notify("STOPPING=1");
@@ -505,6 +513,8 @@ pub fn run(
         points: finished.points,
         final_cloud_after_last_frame_s: finished.after_last_frame_s,
         cpu_seconds: cpu_seconds() - cpu_start,
+        live_cpu_seconds: live_load.0,
+        live_wall_seconds: live_load.1,
         capture_error: lock(&flags.capture_error).clone(),
         checkpoint_error: checkpoint.error().map(str::to_string),
         reconstruction: finished.reconstruction,

@@ -179,6 +179,13 @@ fn replay_streams_status_and_clients_end_with_the_final_cloud() {
     assert_eq!(r["frames_in"], 100);
     assert_eq!(r["stream_clients_total"], 3);
     assert!(r["latency"]["samples"].as_u64().unwrap_or(0) > 0, "{r}");
+    // The live part's load: the 100 frames took their 3.3 s of real time, before the
+    // final solve, within the whole run.
+    let f = |k: &str| r[k].as_f64().unwrap_or(f64::NAN);
+    assert!(f("live_wall_seconds") >= 3.0, "{r}");
+    assert!(f("live_wall_seconds") < f("wall_seconds"), "{r}");
+    assert!(f("live_cpu_seconds") > 0.0, "{r}");
+    assert!(f("live_cpu_seconds") <= f("cpu_seconds"), "{r}");
 }
 
 #[test]
