@@ -195,7 +195,7 @@ impl Sample {
                 }
             }
         }
-        let pairs = super::nullspace::smallest_pairs(&m, None, Default::default())?;
+        let pairs = super::nullspace::smallest_pairs(&m, rho)?;
         let second_null = pairs.values[1] < SECOND_NULL_NOISE * pairs.values[0];
         let xs: Vec<&Vec<f64>> = if second_null {
             pairs.vectors.iter().collect()

@@ -92,13 +92,6 @@ impl Cholesky {
         (0..n).map(|i| x[(i, 0)]).collect()
     }
 
-    /// `A⁻¹ X` in place, for every column of `x` (on one thread, as [`Self::solve`]).
-    pub(super) fn solve_columns(&self, x: faer::MatMut<'_, f64>) {
-        let (n, k) = (self.l.nrows(), x.ncols());
-        let mut mem = MemBuffer::new(llt::solve::solve_in_place_scratch::<f64>(n, k, Par::Seq));
-        llt::solve::solve_in_place(self.l.as_ref(), x, Par::Seq, MemStack::new(&mut mem));
-    }
-
     /// `A⁻¹`, both triangles.
     pub(super) fn inverse(&self) -> Mat<f64> {
         let n = self.l.nrows();

@@ -490,17 +490,11 @@ fn the_focal_scale_is_found_from_a_camera_file_30_percent_off() {
         (found / lambda - 1.0).abs() < 1e-4,
         "focal scale {found} for {lambda}"
     );
-    // Every plane right, after the one global scale, and all but one at most determined:
-    // the crossings are exact, so the estimated spread is rounding (2e-13 px), and
-    // rounding decides whether a plane's crossings sit within it.
+    // Every plane determined and right, after the one global scale.
     let truth = scan.flat_planes();
-    let undetermined = (0..truth.len()).filter(|&i| cal.plane(i).is_none()).count();
-    assert!(undetermined <= 1, "{undetermined} planes undetermined");
     let mut ratios = Vec::new();
     for (c, u) in ev.crossings.iter().zip(&truth_u) {
-        let Some(plane) = cal.plane(c.a as usize) else {
-            continue;
-        };
+        let plane = cal.plane(c.a as usize).expect("determined");
         let ray = cal.ray(c.u).expect("a ray");
         ratios.push(plane.dot(&ray.r) / truth[c.a as usize].dot(&V3::new(u[0], u[1], 1.0)));
     }

@@ -18,11 +18,9 @@
 //! normalised image units. It is invariant to the gauge and to the scale, so it is
 //! available before orthogonality fixes them.
 
-use super::dense::{Cholesky, DenseThreads};
 use super::SolveError;
 use crate::intersect::Crossing;
-use faer::Mat;
-use nalgebra::Vector3;
+use nalgebra::{DMatrix, Vector3};
 
 /// Solution of the coplanarity system over a subset.
 #[derive(Clone, Debug)]
@@ -47,8 +45,8 @@ pub fn normal_matrix(
     crossings: &[Crossing],
     crossing_ids: &[usize],
     weights: &[f64],
-) -> Mat<f64> {
-    let mut nm = Mat::<f64>::zeros(3 * n, 3 * n);
+) -> DMatrix<f64> {
+    let mut nm = DMatrix::zeros(3 * n, 3 * n);
     for (&k, &w) in crossing_ids.iter().zip(weights) {
         let c = &crossings[k];
         let (Some(i), Some(j)) = (local[c.a as usize], local[c.b as usize]) else {
@@ -57,36 +55,22 @@ pub fn normal_matrix(
         let u = homog(c.u);
         let m = u * u.transpose() * w;
         for (r, s, sign) in [(i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)] {
-            for b in 0..3 {
-                for a in 0..3 {
-                    nm[(3 * r + a, 3 * s + b)] += m[(a, b)] * sign;
-                }
-            }
+            let mut block = nm.fixed_view_mut::<3, 3>(3 * r, 3 * s);
+            block += m * sign;
         }
     }
     nm
-}
-
-/// Smallest eigenpairs of the gauge-shifted normal matrix `N'`, from a random start on
-/// one thread ([`null_space_from`]).
-pub fn null_space(nm: Mat<f64>) -> Result<NullSpace, SolveError> {
-    null_space_from(nm, None, DenseThreads::default())
 }
 
 /// Smallest eigenpairs of the gauge-shifted normal matrix `N'`.
 ///
 /// Only the two smallest are needed, and `N'` is symmetric positive definite, so they
 /// come from subspace iteration on `N'⁻¹` through one Cholesky factorisation
-/// ([`smallest_pairs`], factored on `threads`): about a third of the time of faer's
-/// dense self-adjoint eigensolver at 1200 unknowns (0.3 s there, called once per robust
-/// round). `start`, the solution of a system close to this one (the previous robust
-/// round's), saves the iterations its smallest vector would need. Should the
-/// factorisation fail or the iteration not settle, the dense eigensolver answers.
-pub fn null_space_from(
-    mut nm: Mat<f64>,
-    start: Option<&[Vector3<f64>]>,
-    threads: DenseThreads,
-) -> Result<NullSpace, SolveError> {
+/// ([`smallest_by_inverse_iteration`]): about a third of the time of faer's dense
+/// self-adjoint eigensolver at 1200 unknowns (0.3 s there, called once per robust
+/// round). Should the factorisation fail or the iteration not settle, the dense
+/// eigensolver answers.
+pub fn null_space(mut nm: DMatrix<f64>) -> Result<NullSpace, SolveError> {
     let dim = nm.nrows();
     let n = dim / 3;
     if n < 2 {
@@ -98,13 +82,10 @@ pub fn null_space_from(
     let rho = gauge_shift(&mut nm).ok_or(SolveError::Degenerate(
         "empty or non-finite coplanarity system",
     ))?;
-    let start: Option<Vec<f64>> = start.map(|v| v.iter().flat_map(|p| p.iter().copied()).collect());
-    let (v0, l0, l1) = match smallest_pairs(&nm, start.as_deref(), threads) {
-        Some(pairs) => {
-            let [v0, _] = pairs.vectors;
-            (v0, pairs.values[0], pairs.values[1])
-        }
-        None => smallest_dense(&nm)?,
+    let mat = faer::Mat::<f64>::from_fn(dim, dim, |i, j| nm[(i, j)]);
+    let (v0, l0, l1) = match smallest_by_inverse_iteration(&mat, rho) {
+        Some(pairs) => pairs,
+        None => smallest_dense(&mat)?,
     };
     let (l0, l1) = (l0 / rho, l1 / rho);
     if l1 < 1e-10 {
@@ -124,9 +105,9 @@ pub fn null_space_from(
 
 /// `N' = N + ρ G Gᵀ` in place (see the module docs); returns `ρ`, or `None` when `N`
 /// is empty or not finite.
-fn gauge_shift(nm: &mut Mat<f64>) -> Option<f64> {
+fn gauge_shift(nm: &mut DMatrix<f64>) -> Option<f64> {
     let n = nm.nrows() / 3;
-    let rho = (0..nm.nrows()).map(|i| nm[(i, i)]).sum::<f64>() / nm.nrows() as f64;
+    let rho = nm.trace() / nm.nrows() as f64;
     if !(rho > 0.0 && rho.is_finite()) {
         return None;
     }
@@ -141,26 +122,24 @@ fn gauge_shift(nm: &mut Mat<f64>) -> Option<f64> {
     Some(rho)
 }
 
-/// Vectors of the subspace iteration: the two wanted and six more. The second smallest
-/// eigenvalue of a coplanarity system sits in a cluster (on the 600-frame room its next
-/// six are within 1.7× of it), and the iteration closes in on it at the ratio `λ₂ / λ₉`;
-/// with four vectors it took 17–48 iterations there, with eight about four.
-pub const SUBSPACE: usize = 8;
+/// Vectors of the subspace iteration: the two wanted and two more, which speed the
+/// convergence of the second to the ratio `λ₂ / λ₅`.
+pub const SUBSPACE: usize = 4;
 /// Subspace iterations at most before the dense fallback.
 const MAX_SUBSPACE_ITERATIONS: usize = 100;
-/// The smallest eigenvector is taken when its residual bounds its angle to the true one
-/// by this (radians).
-const VECTOR_TOLERANCE: f64 = 1e-9;
-/// The second eigenvalue is taken when its residual bounds its relative error by this:
-/// it only decides, against a threshold of `1e-10 ρ`, whether the system has a second
-/// solution, and where it is that small, the bound also holds its vector to within
-/// `0.1 λ₂ / λ₃` radians of the second null direction.
-const VALUE_TOLERANCE: f64 = 0.1;
 
 /// The smallest eigenvector of the symmetric positive definite `mat` and its two
-/// smallest eigenvalues: [`smallest_pairs`] from a random start, on one thread.
-pub fn smallest_by_inverse_iteration(mat: &faer::Mat<f64>) -> Option<(Vec<f64>, f64, f64)> {
-    let pairs = smallest_pairs(mat, None, DenseThreads::default())?;
+/// smallest eigenvalues: subspace iteration with [`SUBSPACE`] vectors on `mat⁻¹`
+/// (Cholesky), each step followed by Rayleigh–Ritz on `mat`. The null direction
+/// converges at the ratio of the smallest eigenvalue (noise, or zero) to the fifth,
+/// in a step or two; iteration stops when the second Ritz value has settled to 1e-9.
+/// `mat` is shifted by `1e-12 ρ` for the factorisation only, so that an exactly
+/// singular system still factors. `None` when it does not factor or settle.
+pub fn smallest_by_inverse_iteration(
+    mat: &faer::Mat<f64>,
+    rho: f64,
+) -> Option<(Vec<f64>, f64, f64)> {
+    let pairs = smallest_pairs(mat, rho)?;
     let [v0, _] = pairs.vectors;
     Some((v0, pairs.values[0], pairs.values[1]))
 }
@@ -172,25 +151,18 @@ pub struct SmallestPairs {
     pub values: [f64; SUBSPACE],
 }
 
-/// Subspace iteration with [`SUBSPACE`] vectors on `mat⁻¹` (one Cholesky factorisation
-/// on `threads`), each step followed by Rayleigh–Ritz on `mat`. It stops when the
-/// residuals `‖M x_j − l_j x_j‖` bound the smallest vector's angle by
-/// [`VECTOR_TOLERANCE`] (Davis–Kahan: the residual over the gap to the second value)
-/// and the second value's relative error by [`VALUE_TOLERANCE`] (an eigenvalue lies
-/// within the residual of a Ritz value). `start`, if given, is the first vector's
-/// start; the others start from fixed pseudo-random entries. `mat`'s diagonal is raised
-/// by `1e-12` of itself for the factorisation only, so that an exactly singular system
-/// still factors. `None` when it does not factor or settle.
-pub fn smallest_pairs(
-    mat: &faer::Mat<f64>,
-    start: Option<&[f64]>,
-    threads: DenseThreads,
-) -> Option<SmallestPairs> {
+/// The subspace iteration of [`smallest_by_inverse_iteration`], keeping the two
+/// smallest eigenvectors and every Ritz value.
+pub fn smallest_pairs(mat: &faer::Mat<f64>, rho: f64) -> Option<SmallestPairs> {
     let dim = mat.nrows();
     if dim < 2 * SUBSPACE {
         return None;
     }
-    let llt = Cholesky::of_lower(mat, 1e-12, threads)?;
+    let mut shifted = mat.clone();
+    for i in 0..dim {
+        shifted[(i, i)] += 1e-12 * rho;
+    }
+    let llt = shifted.llt(faer::Side::Lower).ok()?;
     // A start with a component along every eigenvector: fixed pseudo-random entries.
     let mut state = 0x9e37_79b9_7f4a_7c15u64;
     let mut x = faer::Mat::<f64>::from_fn(dim, SUBSPACE, |_, _| {
@@ -199,52 +171,36 @@ pub fn smallest_pairs(
         state ^= state << 17;
         (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
     });
-    if let Some(v) = start.filter(|v| v.len() == dim) {
-        for (i, &e) in v.iter().enumerate() {
-            x[(i, 0)] = e;
-        }
-    }
-    let mut last_r0 = f64::INFINITY;
+    let mut last = f64::NAN;
     for _ in 0..MAX_SUBSPACE_ITERATIONS {
-        llt.solve_columns(x.as_mut());
+        faer::linalg::solvers::Solve::solve_in_place(&llt, x.as_mut());
         orthonormalise(&mut x)?;
         // Rayleigh–Ritz: the eigenpairs of Xᵀ M X, the vectors rotated to them.
         let mx = mat * &x;
         let h = x.transpose() * &mx;
-        let h = nalgebra::SMatrix::<f64, SUBSPACE, SUBSPACE>::from_fn(|i, j| {
-            0.5 * (h[(i, j)] + h[(j, i)])
-        });
+        let h = nalgebra::Matrix4::from_fn(|i, j| 0.5 * (h[(i, j)] + h[(j, i)]));
         let eig = nalgebra::SymmetricEigen::new(h);
-        let mut order: [usize; SUBSPACE] = std::array::from_fn(|k| k);
+        let mut order: Vec<usize> = (0..SUBSPACE).collect();
         order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
         let rotation =
             faer::Mat::<f64>::from_fn(SUBSPACE, SUBSPACE, |i, j| eig.eigenvectors[(i, order[j])]);
         x = &x * &rotation;
-        let mx = &mx * &rotation;
-        let values: [f64; SUBSPACE] = std::array::from_fn(|k| eig.eigenvalues[order[k]]);
-        let (l0, l1) = (values[0], values[1]);
+        let (l0, l1) = (eig.eigenvalues[order[0]], eig.eigenvalues[order[1]]);
         if !(l0.is_finite() && l1.is_finite()) {
             return None;
         }
-        let residual = |j: usize| {
-            (0..dim)
-                .map(|i| (mx[(i, j)] - values[j] * x[(i, j)]).powi(2))
-                .sum::<f64>()
-                .sqrt()
-        };
-        // The first vector is done at the tolerance, or, within a thousand times it, once
-        // its residual stops halving: it is then at the level of the rounding in `M x`.
-        let (r0, gap) = (residual(0), l1 - l0);
-        let first_done = r0 <= VECTOR_TOLERANCE * gap
-            || (r0 <= 1e3 * VECTOR_TOLERANCE * gap && r0 > 0.5 * last_r0);
-        last_r0 = r0;
-        if first_done && residual(1) <= VALUE_TOLERANCE * l1 {
+        if (l1 - last).abs() <= 1e-9 * l1.abs() {
             let column = |j: usize| (0..dim).map(|i| x[(i, j)]).collect::<Vec<f64>>();
+            let mut values = [0.0; SUBSPACE];
+            for (k, v) in values.iter_mut().enumerate() {
+                *v = eig.eigenvalues[order[k]].max(0.0);
+            }
             return Some(SmallestPairs {
                 vectors: [column(0), column(1)],
-                values: values.map(|v| v.max(0.0)),
+                values,
             });
         }
+        last = l1;
     }
     None
 }
@@ -351,8 +307,7 @@ mod tests {
             .map(|&k| 1.0 / homog(cr[k].u).norm_squared())
             .collect();
         let nm = normal_matrix(n, &sub.local, &cr, &ids, &w);
-        let dense = nalgebra::DMatrix::from_fn(3 * n, 3 * n, |i, j| nm[(i, j)]);
-        let ev = dense.clone().symmetric_eigen();
+        let ev = nm.clone().symmetric_eigen();
         let mut vals: Vec<f64> = ev.eigenvalues.iter().copied().collect();
         vals.sort_by(f64::total_cmp);
         let top = vals[vals.len() - 1];
@@ -371,9 +326,9 @@ mod tests {
         // True V and the gauge directions are annihilated.
         let v =
             nalgebra::DVector::from_iterator(3 * n, planes.iter().flat_map(|p| p.iter().copied()));
-        assert!((&dense * &v).norm() < 1e-10 * top * v.norm());
+        assert!((&nm * &v).norm() < 1e-10 * top * v.norm());
         let g = nalgebra::DVector::from_fn(3 * n, |i, _| if i % 3 == 1 { 1.0 } else { 0.0 });
-        assert!((&dense * &g).norm() < 1e-10 * top);
+        assert!((&nm * &g).norm() < 1e-10 * top);
 
         // The gauge-fixed solution is the truth minus its mean, up to scale.
         let ns = null_space(nm).expect("solvable");
@@ -433,9 +388,10 @@ mod tests {
             let w = vec![1.0; sub.crossings.len()];
             let mut nm = normal_matrix(n, &sub.local, &cr, &sub.crossings, &w);
             let rho = gauge_shift(&mut nm).expect("a system");
+            let mat = faer::Mat::<f64>::from_fn(3 * n, 3 * n, |i, j| nm[(i, j)]);
             let (v_it, l0_it, l1_it) =
-                smallest_by_inverse_iteration(&nm).expect("iteration settles");
-            let (v_d, l0_d, l1_d) = smallest_dense(&nm).expect("dense");
+                smallest_by_inverse_iteration(&mat, rho).expect("iteration settles");
+            let (v_d, l0_d, l1_d) = smallest_dense(&mat).expect("dense");
             let dot: f64 = v_it.iter().zip(&v_d).map(|(a, b)| a * b).sum();
             assert!(
                 1.0 - dot.abs() < 1e-10,
@@ -443,7 +399,7 @@ mod tests {
                 dot.abs()
             );
             assert!(
-                (l1_it - l1_d).abs() <= VALUE_TOLERANCE * l1_d,
+                (l1_it - l1_d).abs() <= 1e-8 * l1_d,
                 "noise {noise}: {l1_it} vs {l1_d}"
             );
             assert!(
