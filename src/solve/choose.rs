@@ -68,12 +68,9 @@ pub(crate) fn best_of_preferring(
     }
     let best = estimates.swap_remove(k);
     let base = score(evidence, &best, params);
-    let same = 3.0 * median_crossing_sigma(evidence, &best);
     let mut alternatives: Vec<Alternative> = estimates
         .iter()
-        .filter(|e| {
-            depth_difference(evidence, &best, e) > same && !same_basin(evidence, &best, e, params)
-        })
+        .filter(|e| !same_as(&best, e))
         .map(|e| {
             let delta_chi2 = score(evidence, e, params) - base;
             Alternative {
