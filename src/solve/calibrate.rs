@@ -484,8 +484,10 @@ type Starts = (super::Solution, Vec<Option<V3>>, Vec<Estimate>);
 /// (stripes on one flat table, the other laser missing) drifts along the chain, which the
 /// joint estimate then keeps (a table top: 0.7 % of the points 4-10 % off, the cost 36 %
 /// above the truth's); the centre start knows nothing of a hand that walks. The
-/// estimator's [`score`] chooses among all. The centre start is refined on all the
-/// anchors unless it loses on every other one ([`super::screen`]). Also returns the
+/// estimator's [`score`] chooses among all. The centre start comes as two twins that its
+/// own evidence cannot tell apart (the planes and their reflection through the centre);
+/// each is refined on all the anchors unless it loses on every other one
+/// ([`super::screen`]) to the linear start's. Also returns the
 /// linear start (empty when it failed) and its planes.
 fn two_starts(
     evidence: &Evidence,
@@ -525,11 +527,12 @@ fn two_starts(
         },
         // Without the linear start's estimates there is nothing to screen against
         // (`OnHalf::loses_to` would say no): the screen is not refined for nothing.
-        || {
-            centre
-                .as_ref()
-                .filter(|_| linear_error.is_none())
-                .and_then(|(c, _)| super::screen::on_half(sub, c, sigma_px, eparams))
+        || -> [Option<super::screen::OnHalf>; 2] {
+            let screen = |k: usize| {
+                let c = centre.as_ref().filter(|_| linear_error.is_none())?;
+                super::screen::on_half(sub, &c.twins[k], sigma_px, eparams)
+            };
+            [screen(0), screen(1)]
         },
     );
     let mut estimates = Vec::new();
@@ -540,17 +543,33 @@ fn two_starts(
         None => {}
     }
     match centre {
-        Some((centre_planes, rms)) => {
+        Some(c) => {
             tracing::debug!(
                 "the centre start: crosses {:.2}° from orthogonal",
-                rms.asin().to_degrees()
+                c.orthogonality_rms.asin().to_degrees()
             );
-            if on_half.is_some_and(|h| h.loses_to(sub, &estimates, eparams)) {
-                tracing::debug!("the centre start loses on every other anchor: left out");
-            } else {
-                match refine_starts(sub, &centre_planes, 1.0, sigma_px, eparams) {
+            // The twins fit the start's own evidence alike; the hand's walk tells them
+            // apart. Each is screened against the linear start's estimates only, not
+            // against the other twin: a start refined on half the anchors may stop in
+            // a poor minimum its refinement on all of them leaves (on tuning 15 the
+            // right twin scored worse than the wrong one on the half, then found a
+            // shift on all anchors that beat it by 5·10⁴), and which twin comes first is
+            // rounding.
+            let before = estimates.len();
+            for (k, (twin, half)) in c.twins.iter().zip(&on_half).enumerate() {
+                if half
+                    .as_ref()
+                    .is_some_and(|h| h.loses_to(sub, &estimates[..before], eparams))
+                {
+                    tracing::debug!(
+                        twin = k,
+                        "the centre start loses on every other anchor: left out"
+                    );
+                    continue;
+                }
+                match refine_starts(sub, twin, 1.0, sigma_px, eparams) {
                     Ok(found) => estimates.extend(found),
-                    Err(e) => tracing::debug!("the centre start did not refine: {e}"),
+                    Err(e) => tracing::debug!(twin = k, "the centre start did not refine: {e}"),
                 }
             }
         }

@@ -178,8 +178,10 @@ mod tests {
         normalise_scale(&ev, &mut best);
         let best = [best];
         assert!(!loses_on_half(&ev, &truth, 0.05, &params, &best));
-        let (centre, _) =
+        let centre =
             super::super::centre::fixed_centre_start(&ev, &Default::default()).expect("start");
-        assert!(loses_on_half(&ev, &centre, 0.05, &params, &best));
+        for twin in &centre.twins {
+            assert!(loses_on_half(&ev, twin, 0.05, &params, &best));
+        }
     }
 }
