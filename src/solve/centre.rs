@@ -40,7 +40,9 @@ use faer::Mat;
 use nalgebra::{DMatrix, DVector, Vector3};
 use rayon::prelude::*;
 
+use super::dense::DenseThreads;
 use super::evidence::{CrossingClass, Evidence};
+use super::subspace::{smallest_pairs, Wanted};
 
 type V3 = Vector3<f64>;
 
@@ -225,7 +227,7 @@ impl Sample {
                 }
             }
         }
-        let pairs = super::nullspace::smallest_pairs(&m, rho)?;
+        let pairs = smallest_pairs(&m, Wanted::SmallestTwo, DenseThreads::default())?;
         let second_null = pairs.values[1] < SECOND_NULL_NOISE * pairs.values[0];
         let xs: Vec<&Vec<f64>> = if second_null {
             pairs.vectors.iter().collect()

@@ -50,15 +50,30 @@ impl Cholesky {
     /// Factors `a + damping · diag(a)`, reading only `a`'s lower triangle; `None` where it
     /// is not positive definite.
     pub(super) fn of_lower(a: &Mat<f64>, damping: f64, threads: DenseThreads) -> Option<Self> {
+        Self::of_lower_with(a, |d| d + damping * d, threads)
+    }
+
+    /// Factors `a + shift · I`, reading only `a`'s lower triangle.
+    pub(super) fn of_lower_shifted(
+        a: &Mat<f64>,
+        shift: f64,
+        threads: DenseThreads,
+    ) -> Option<Self> {
+        Self::of_lower_with(a, |d| d + shift, threads)
+    }
+
+    /// Factors `a` with each diagonal entry `d` replaced by `diagonal(d)`.
+    fn of_lower_with(
+        a: &Mat<f64>,
+        diagonal: impl Fn(f64) -> f64,
+        threads: DenseThreads,
+    ) -> Option<Self> {
         let n = a.nrows();
         let par = threads.par(n);
         let mut l = Mat::<f64>::zeros(n, n);
         l.copy_from_triangular_lower(a);
-        if damping != 0.0 {
-            for i in 0..n {
-                let d = a[(i, i)];
-                l[(i, i)] = d + damping * d;
-            }
+        for i in 0..n {
+            l[(i, i)] = diagonal(a[(i, i)]);
         }
         let mut mem = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
             n,
@@ -90,6 +105,13 @@ impl Cholesky {
             MemStack::new(&mut mem),
         );
         (0..n).map(|i| x[(i, 0)]).collect()
+    }
+
+    /// `A⁻¹ X` in place, for every column of `x` (on one thread, as [`Self::solve`]).
+    pub(super) fn solve_columns(&self, x: faer::MatMut<'_, f64>) {
+        let (n, k) = (self.l.nrows(), x.ncols());
+        let mut mem = MemBuffer::new(llt::solve::solve_in_place_scratch::<f64>(n, k, Par::Seq));
+        llt::solve::solve_in_place(self.l.as_ref(), x, Par::Seq, MemStack::new(&mut mem));
     }
 
     /// `A⁻¹`, both triangles.

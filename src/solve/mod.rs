@@ -55,6 +55,7 @@ pub mod pose;
 mod screen;
 pub mod seed;
 pub mod subset;
+pub mod subspace;
 pub mod synthetic;
 pub mod terms;
 
@@ -458,7 +459,10 @@ pub fn robust_global(
                 * 100.0;
             let weights: Vec<f64> = weights.iter().map(|w| w.min(cap)).collect();
             let nm = nullspace::normal_matrix(n, &subset.local, cr, &candidates, &weights);
-            let ns = match nullspace::null_space(nm) {
+            // The last round's planes start this one (they differ by a reweighting).
+            let start: Option<Vec<Vector3<f64>>> =
+                subset.curves.iter().map(|&c| prev[c as usize]).collect();
+            let ns = match nullspace::null_space_from(nm, start.as_deref(), params.dense_threads) {
                 Ok(ns) => ns,
                 // Down-weighting took the last off-line crossings of some curve: prune.
                 Err(_) if last.is_some() => break,
@@ -839,7 +843,8 @@ fn focal_jackknife_std(
         // The weights of the robust rounds' inliers, without their Cauchy factor.
         let weights: Vec<f64> = ids.iter().map(|&k| crossing_weight(&cr[k])).collect();
         let nm = nullspace::normal_matrix(n, &subset.local, cr, &ids, &weights);
-        let ns = nullspace::null_space(nm).ok()?;
+        let start = Some(global.null_space.v0.as_slice());
+        let ns = nullspace::null_space_from(nm, start, params.dense_threads).ok()?;
         let (orth, _) =
             ortho::solve_orthogonality(&ns.v0, crosses, true, params.outlier_mad_k, NOISE_FLOOR)
                 .ok()?;

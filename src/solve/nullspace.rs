@@ -18,6 +18,8 @@
 //! normalised image units. It is invariant to the gauge and to the scale, so it is
 //! available before orthogonality fixes them.
 
+use super::dense::DenseThreads;
+use super::subspace::{smallest_pairs, Wanted};
 use super::SolveError;
 use crate::intersect::Crossing;
 use nalgebra::{DMatrix, Vector3};
@@ -62,15 +64,26 @@ pub fn normal_matrix(
     nm
 }
 
+/// Smallest eigenpairs of the gauge-shifted normal matrix `N'`, from a pseudo-random
+/// start on one thread ([`null_space_from`]).
+pub fn null_space(nm: DMatrix<f64>) -> Result<NullSpace, SolveError> {
+    null_space_from(nm, None, DenseThreads::default())
+}
+
 /// Smallest eigenpairs of the gauge-shifted normal matrix `N'`.
 ///
-/// Only the two smallest are needed, and `N'` is symmetric positive definite, so they
-/// come from subspace iteration on `N'⁻¹` through one Cholesky factorisation
-/// ([`smallest_by_inverse_iteration`]): about a third of the time of faer's dense
-/// self-adjoint eigensolver at 1200 unknowns (0.3 s there, called once per robust
-/// round). Should the factorisation fail or the iteration not settle, the dense
-/// eigensolver answers.
-pub fn null_space(mut nm: DMatrix<f64>) -> Result<NullSpace, SolveError> {
+/// Only the smallest vector and the second value are needed, and `N'` is symmetric
+/// positive definite, so they come from subspace iteration on `N'⁻¹` through one
+/// Cholesky factorisation on `threads` ([`Wanted::Smallest`]): far less than faer's
+/// dense self-adjoint eigensolver at 1200 unknowns (0.3 s there, called once per robust
+/// round). `start`, the solution of a system close to this one (the previous robust
+/// round's), saves the steps its smallest vector would need. Should the factorisation
+/// fail or the iteration not settle, the dense eigensolver answers.
+pub fn null_space_from(
+    mut nm: DMatrix<f64>,
+    start: Option<&[Vector3<f64>]>,
+    threads: DenseThreads,
+) -> Result<NullSpace, SolveError> {
     let dim = nm.nrows();
     let n = dim / 3;
     if n < 2 {
@@ -83,8 +96,15 @@ pub fn null_space(mut nm: DMatrix<f64>) -> Result<NullSpace, SolveError> {
         "empty or non-finite coplanarity system",
     ))?;
     let mat = faer::Mat::<f64>::from_fn(dim, dim, |i, j| nm[(i, j)]);
-    let (v0, l0, l1) = match smallest_by_inverse_iteration(&mat, rho) {
-        Some(pairs) => pairs,
+    let start: Option<Vec<f64>> = start.map(|v| v.iter().flat_map(|p| p.iter().copied()).collect());
+    let wanted = Wanted::Smallest {
+        start: start.as_deref(),
+    };
+    let (v0, l0, l1) = match smallest_pairs(&mat, wanted, threads) {
+        Some(pairs) => {
+            let [v0, _] = pairs.vectors;
+            (v0, pairs.values[0], pairs.values[1])
+        }
         None => smallest_dense(&mat)?,
     };
     let (l0, l1) = (l0 / rho, l1 / rho);
@@ -120,111 +140,6 @@ fn gauge_shift(nm: &mut DMatrix<f64>) -> Option<f64> {
         }
     }
     Some(rho)
-}
-
-/// Vectors of the subspace iteration: the two wanted and two more, which speed the
-/// convergence of the second to the ratio `λ₂ / λ₅`.
-pub const SUBSPACE: usize = 4;
-/// Subspace iterations at most before the dense fallback.
-const MAX_SUBSPACE_ITERATIONS: usize = 100;
-
-/// The smallest eigenvector of the symmetric positive definite `mat` and its two
-/// smallest eigenvalues: subspace iteration with [`SUBSPACE`] vectors on `mat⁻¹`
-/// (Cholesky), each step followed by Rayleigh–Ritz on `mat`. The null direction
-/// converges at the ratio of the smallest eigenvalue (noise, or zero) to the fifth,
-/// in a step or two; iteration stops when the second Ritz value has settled to 1e-9.
-/// `mat` is shifted by `1e-12 ρ` for the factorisation only, so that an exactly
-/// singular system still factors. `None` when it does not factor or settle.
-pub fn smallest_by_inverse_iteration(
-    mat: &faer::Mat<f64>,
-    rho: f64,
-) -> Option<(Vec<f64>, f64, f64)> {
-    let pairs = smallest_pairs(mat, rho)?;
-    let [v0, _] = pairs.vectors;
-    Some((v0, pairs.values[0], pairs.values[1]))
-}
-
-/// The two smallest eigenvectors of a symmetric positive definite matrix and its
-/// [`SUBSPACE`] smallest eigenvalues, ascending.
-pub struct SmallestPairs {
-    pub vectors: [Vec<f64>; 2],
-    pub values: [f64; SUBSPACE],
-}
-
-/// The subspace iteration of [`smallest_by_inverse_iteration`], keeping the two
-/// smallest eigenvectors and every Ritz value.
-pub fn smallest_pairs(mat: &faer::Mat<f64>, rho: f64) -> Option<SmallestPairs> {
-    let dim = mat.nrows();
-    if dim < 2 * SUBSPACE {
-        return None;
-    }
-    let mut shifted = mat.clone();
-    for i in 0..dim {
-        shifted[(i, i)] += 1e-12 * rho;
-    }
-    let llt = shifted.llt(faer::Side::Lower).ok()?;
-    // A start with a component along every eigenvector: fixed pseudo-random entries.
-    let mut state = 0x9e37_79b9_7f4a_7c15u64;
-    let mut x = faer::Mat::<f64>::from_fn(dim, SUBSPACE, |_, _| {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-    });
-    let mut last = f64::NAN;
-    for _ in 0..MAX_SUBSPACE_ITERATIONS {
-        faer::linalg::solvers::Solve::solve_in_place(&llt, x.as_mut());
-        orthonormalise(&mut x)?;
-        // Rayleigh–Ritz: the eigenpairs of Xᵀ M X, the vectors rotated to them.
-        let mx = mat * &x;
-        let h = x.transpose() * &mx;
-        let h = nalgebra::Matrix4::from_fn(|i, j| 0.5 * (h[(i, j)] + h[(j, i)]));
-        let eig = nalgebra::SymmetricEigen::new(h);
-        let mut order: Vec<usize> = (0..SUBSPACE).collect();
-        order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-        let rotation =
-            faer::Mat::<f64>::from_fn(SUBSPACE, SUBSPACE, |i, j| eig.eigenvectors[(i, order[j])]);
-        x = &x * &rotation;
-        let (l0, l1) = (eig.eigenvalues[order[0]], eig.eigenvalues[order[1]]);
-        if !(l0.is_finite() && l1.is_finite()) {
-            return None;
-        }
-        if (l1 - last).abs() <= 1e-9 * l1.abs() {
-            let column = |j: usize| (0..dim).map(|i| x[(i, j)]).collect::<Vec<f64>>();
-            let mut values = [0.0; SUBSPACE];
-            for (k, v) in values.iter_mut().enumerate() {
-                *v = eig.eigenvalues[order[k]].max(0.0);
-            }
-            return Some(SmallestPairs {
-                vectors: [column(0), column(1)],
-                values,
-            });
-        }
-        last = l1;
-    }
-    None
-}
-
-/// Modified Gram–Schmidt on the columns of `x`; `None` if they are dependent.
-fn orthonormalise(x: &mut faer::Mat<f64>) -> Option<()> {
-    let (dim, k) = (x.nrows(), x.ncols());
-    for j in 0..k {
-        for p in 0..j {
-            let dot: f64 = (0..dim).map(|i| x[(i, j)] * x[(i, p)]).sum();
-            for i in 0..dim {
-                let v = x[(i, p)];
-                x[(i, j)] -= dot * v;
-            }
-        }
-        let norm = (0..dim).map(|i| x[(i, j)] * x[(i, j)]).sum::<f64>().sqrt();
-        if !(norm > 0.0 && norm.is_finite()) {
-            return None;
-        }
-        for i in 0..dim {
-            x[(i, j)] /= norm;
-        }
-    }
-    Some(())
 }
 
 /// The same from faer's dense self-adjoint eigensolver.
@@ -389,8 +304,9 @@ mod tests {
             let mut nm = normal_matrix(n, &sub.local, &cr, &sub.crossings, &w);
             let rho = gauge_shift(&mut nm).expect("a system");
             let mat = faer::Mat::<f64>::from_fn(3 * n, 3 * n, |i, j| nm[(i, j)]);
-            let (v_it, l0_it, l1_it) =
-                smallest_by_inverse_iteration(&mat, rho).expect("iteration settles");
+            let it = smallest_pairs(&mat, Wanted::Smallest { start: None }, DenseThreads(1))
+                .expect("iteration settles");
+            let (v_it, l0_it, l1_it) = (&it.vectors[0], it.values[0], it.values[1]);
             let (v_d, l0_d, l1_d) = smallest_dense(&mat).expect("dense");
             let dot: f64 = v_it.iter().zip(&v_d).map(|(a, b)| a * b).sum();
             assert!(
@@ -398,8 +314,9 @@ mod tests {
                 "noise {noise}: |cos| {}",
                 dot.abs()
             );
+            // The second value is only wanted to within its tolerance (10 %).
             assert!(
-                (l1_it - l1_d).abs() <= 1e-8 * l1_d,
+                (l1_it - l1_d).abs() <= 0.1 * l1_d,
                 "noise {noise}: {l1_it} vs {l1_d}"
             );
             assert!(
