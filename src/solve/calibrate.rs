@@ -555,11 +555,17 @@ fn two_starts(
             // right twin scored worse than the wrong one on the half, then found a
             // shift on all anchors that beat it by 5·10⁴), and which twin comes first is
             // rounding.
-            let before = estimates.len();
+            // The linear start's best refitted on the half once, for both twins.
+            let best_on_half = on_half
+                .iter()
+                .flatten()
+                .next()
+                .and_then(|h| h.best_score(sub, &estimates, eparams));
             for (k, (twin, half)) in c.twins.iter().zip(&on_half).enumerate() {
                 if half
                     .as_ref()
-                    .is_some_and(|h| h.loses_to(sub, &estimates[..before], eparams))
+                    .zip(best_on_half)
+                    .is_some_and(|(h, best)| h.loses_to_score(best))
                 {
                     tracing::debug!(
                         twin = k,

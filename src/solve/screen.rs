@@ -88,35 +88,54 @@ pub(super) fn on_half(
 
 impl OnHalf {
     /// Whether the start scores worse on the half than the best of `estimates` (of all
-    /// the anchors of `sub`, the evidence [`on_half`] was given), refitted there, by [`AMBIGUOUS_CHI2`]; `false` without an
-    /// estimate, or when the best does not refine on the half.
+    /// the anchors of `sub`, the evidence [`on_half`] was given), refitted there, by
+    /// [`AMBIGUOUS_CHI2`]; `false` without an estimate, or when the best does not refine
+    /// on the half.
+    #[cfg(test)]
     pub(super) fn loses_to(
         &self,
         sub: &Evidence,
         estimates: &[Estimate],
         eparams: &EstimateParams,
     ) -> bool {
+        self.best_score(sub, estimates, eparams)
+            .is_some_and(|best| self.loses_to_score(best))
+    }
+
+    /// The best of `estimates` (of all the anchors of `sub`, the evidence [`on_half`] was
+    /// given) refitted on the half and scored there; `None` without an estimate, or when
+    /// it does not refine there. Every start screened on the same `sub` has the same half
+    /// (every other anchor), so one refit serves them all.
+    pub(super) fn best_score(
+        &self,
+        sub: &Evidence,
+        estimates: &[Estimate],
+        eparams: &EstimateParams,
+    ) -> Option<f64> {
         let coarse = &self.half.evidence;
-        let Some(k) = least_cost(sub, estimates, eparams) else {
-            return false;
-        };
+        let k = least_cost(sub, estimates, eparams)?;
         let best = &estimates[k];
         let refit = Start {
             poses: restricted(best, coarse, &self.half),
             focal_scale: best.focal_scale,
             spreads: best.spreads,
         };
-        let best_score = match estimate(coarse, &refit, eparams) {
+        match estimate(coarse, &refit, eparams) {
             Ok(mut est) => {
                 normalise_scale(coarse, &mut est);
-                score(coarse, &est, eparams)
+                Some(score(coarse, &est, eparams))
             }
             Err(e) => {
                 tracing::debug!("the best estimate did not refine on every other anchor: {e}");
-                return false;
+                None
             }
-        };
-        let delta = self.start_score - best_score;
+        }
+    }
+
+    /// Whether the start scores worse on the half than `best` ([`Self::best_score`]) by
+    /// [`AMBIGUOUS_CHI2`].
+    pub(super) fn loses_to_score(&self, best: f64) -> bool {
+        let delta = self.start_score - best;
         tracing::debug!(
             delta,
             "the start against the best estimate on every other anchor"
