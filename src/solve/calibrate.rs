@@ -526,7 +526,7 @@ fn two_starts(
                 .then(|| refine_starts(sub, &planes, start.focal_scale, sigma_px, eparams))
         },
         // Without the linear start's estimates there is nothing to screen against
-        // (`OnHalf::loses_to` would say no): the screen is not refined for nothing.
+        // (`OnHalf::best_score` would give none): the screen is not refined for nothing.
         || -> [Option<super::screen::OnHalf>; 2] {
             let screen = |k: usize| {
                 let c = centre.as_ref().filter(|_| linear_error.is_none())?;
@@ -554,8 +554,7 @@ fn two_starts(
             // a poor minimum its refinement on all of them leaves (on tuning 15 the
             // right twin scored worse than the wrong one on the half, then found a
             // shift on all anchors that beat it by 5·10⁴), and which twin comes first is
-            // rounding.
-            // The linear start's best refitted on the half once, for both twins.
+            // rounding. The linear start's best is refitted on the half once, for both.
             let best_on_half = on_half
                 .iter()
                 .flatten()
