@@ -560,23 +560,31 @@ fn two_starts(
                 .flatten()
                 .next()
                 .and_then(|h| h.best_score(sub, &estimates, eparams));
-            for (k, (twin, half)) in c.twins.iter().zip(&on_half).enumerate() {
-                if half
+            // The twins refine side by side (each is partly serial); their estimates
+            // join in the twins' order, so the answer is the one made in sequence.
+            let refine = |k: usize| {
+                let loses = on_half[k]
                     .as_ref()
                     .zip(best_on_half)
-                    .is_some_and(|(h, best)| h.loses_to_score(best))
-                {
+                    .is_some_and(|(h, best)| h.loses_to_score(best));
+                if loses {
                     tracing::debug!(
                         twin = k,
                         "the centre start loses on every other anchor: left out"
                     );
-                    continue;
+                    return Vec::new();
                 }
-                match refine_starts(sub, twin, 1.0, sigma_px, eparams) {
-                    Ok(found) => estimates.extend(found),
-                    Err(e) => tracing::debug!(twin = k, "the centre start did not refine: {e}"),
+                match refine_starts(sub, &c.twins[k], 1.0, sigma_px, eparams) {
+                    Ok(found) => found,
+                    Err(e) => {
+                        tracing::debug!(twin = k, "the centre start did not refine: {e}");
+                        Vec::new()
+                    }
                 }
-            }
+            };
+            let (first, second) = rayon::join(|| refine(0), || refine(1));
+            estimates.extend(first);
+            estimates.extend(second);
         }
         None => tracing::debug!("no centre start"),
     }
