@@ -560,8 +560,11 @@ fn two_starts(
                 .flatten()
                 .next()
                 .and_then(|h| h.best_score(sub, &estimates, eparams));
-            // The twins refine side by side (each is partly serial); their estimates
-            // join in the twins' order, so the answer is the one made in sequence.
+            // Where the caller spares the cores (offline, the daemon's final solve), the
+            // twins refine side by side (each is partly serial); a live epoch keeps to
+            // one, beside the extraction (side by side, a table top's live replay
+            // dropped 3 frames of 300). The estimates join in the twins' order, so the
+            // answer is the one made in sequence.
             let refine = |k: usize| {
                 let loses = on_half[k]
                     .as_ref()
@@ -582,7 +585,11 @@ fn two_starts(
                     }
                 }
             };
-            let (first, second) = rayon::join(|| refine(0), || refine(1));
+            let (first, second) = if eparams.threads.0 > 1 {
+                rayon::join(|| refine(0), || refine(1))
+            } else {
+                (refine(0), refine(1))
+            };
             estimates.extend(first);
             estimates.extend(second);
         }
