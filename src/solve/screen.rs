@@ -1,7 +1,7 @@
 //! Whether a later start of the self-calibration is worth refining on all the anchors.
 //!
-//! Owns [`on_half`] and [`OnHalf::loses_to`]. The joint estimate's cost per step grows as the cube of the
-//! anchors' unknowns (1,800 at 300 anchors: 42 ms a factorisation on two cores), and the
+//! Owns [`on_half`], [`OnHalf::best_score`] and [`OnHalf::loses_to_score`]. The joint
+//! estimate's cost per step grows as the cube of the anchors' unknowns (1,800 at 300 anchors: 42 ms a factorisation on two cores), and the
 //! fixed-centre start ([`super::centre`]) begins far from any minimum where the hand
 //! walks: on the 600-frame room its four rounds and two further shifts took about 150
 //! of the solve's 279 factorisations, 10 of its 22 s, to lose by 3·10⁵ in score. Such a
@@ -36,7 +36,7 @@ const MIN_POSES: usize = 100;
 /// Whether the start `planes` (per plane of `sub`, refined at focal scale 1 from the
 /// spread `sigma_px`) scores worse than the best of `estimates` by [`AMBIGUOUS_CHI2`]
 /// on every other anchor of `sub` (see the module docs): [`on_half`], then
-/// [`OnHalf::loses_to`].
+/// [`OnHalf::best_score`] and [`OnHalf::loses_to_score`].
 #[cfg(test)]
 pub(super) fn loses_on_half(
     sub: &Evidence,
@@ -45,7 +45,10 @@ pub(super) fn loses_on_half(
     eparams: &EstimateParams,
     estimates: &[Estimate],
 ) -> bool {
-    on_half(sub, planes, sigma_px, eparams).is_some_and(|h| h.loses_to(sub, estimates, eparams))
+    on_half(sub, planes, sigma_px, eparams).is_some_and(|h| {
+        h.best_score(sub, estimates, eparams)
+            .is_some_and(|best| h.loses_to_score(best))
+    })
 }
 
 /// A start refined on every other anchor, and its score there.
@@ -87,21 +90,6 @@ pub(super) fn on_half(
 }
 
 impl OnHalf {
-    /// Whether the start scores worse on the half than the best of `estimates` (of all
-    /// the anchors of `sub`, the evidence [`on_half`] was given), refitted there, by
-    /// [`AMBIGUOUS_CHI2`]; `false` without an estimate, or when the best does not refine
-    /// on the half.
-    #[cfg(test)]
-    pub(super) fn loses_to(
-        &self,
-        sub: &Evidence,
-        estimates: &[Estimate],
-        eparams: &EstimateParams,
-    ) -> bool {
-        self.best_score(sub, estimates, eparams)
-            .is_some_and(|best| self.loses_to_score(best))
-    }
-
     /// The best of `estimates` (of all the anchors of `sub`, the evidence [`on_half`] was
     /// given) refitted on the half and scored there; `None` without an estimate, or when
     /// it does not refine there. Every start screened on the same `sub` has the same half
