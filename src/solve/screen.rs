@@ -1,9 +1,10 @@
 //! Whether a later start of the self-calibration is worth refining on all the anchors.
 //!
 //! Owns [`on_half`], [`OnHalf::best_score`] and [`OnHalf::loses_to_score`]. The joint
-//! estimate's cost per step grows as the cube of the anchors' unknowns (1,800 at 300 anchors: 42 ms a factorisation on two cores), and the
-//! fixed-centre start ([`super::centre`]) begins far from any minimum where the hand
-//! walks: on the 600-frame room its four rounds and two further shifts took about 150
+//! estimate's cost per step grows as the cube of the anchors' unknowns (1,800 at 300
+//! anchors: 42 ms a factorisation on two cores), and the fixed-centre start
+//! ([`super::centre`]) begins far from any minimum where the hand walks: on the
+//! 600-frame room its four rounds and two further shifts took about 150
 //! of the solve's 279 factorisations, 10 of its 22 s, to lose by 3·10⁵ in score. Such a
 //! start is refined first on every other anchor, an eighth of the work a step; only a
 //! start that competes there is refined on all of them, exactly as before.
