@@ -408,6 +408,12 @@ impl Incremental {
     pub fn last_captured_nanos(&self) -> Option<u64> {
         self.captured.last().copied()
     }
+
+    /// Whether an epoch is being made and its answer is not in yet.
+    #[cfg(test)]
+    fn solving(&self) -> bool {
+        self.pending.as_ref().is_some_and(|p| p.answer.is_empty())
+    }
 }
 
 #[cfg(test)]

@@ -86,6 +86,7 @@ struct Sent {
 /// Feeds `frames` to `solver` at about 30 fps and returns what each epoch sent.
 fn live_epochs(solver: &mut Incremental, frames: Vec<Vec<Curve>>) -> Vec<Sent> {
     let mut epochs: Vec<Sent> = Vec::new();
+    let mut solving_for = 0;
     for curves in frames {
         let out = solver.add_frame(curves, 0);
         if out.epoch.is_some() {
@@ -98,11 +99,22 @@ fn live_epochs(solver: &mut Incremental, frames: Vec<Vec<Curve>>) -> Vec<Sent> {
                 BatchKind::Arrival | BatchKind::Backlog => e.placed.extend(b.points),
             }
         }
-        // Give the background solve time, as frames at 30 fps would.
+        // Give the background solve time, as frames at 30 fps would; and once it has
+        // had `MAX_BACKLOG` frames' time, wait for it, so that the epochs made do not
+        // depend on the machine's load (the tests run side by side).
         std::thread::sleep(std::time::Duration::from_millis(20));
+        solving_for = if solver.solving() { solving_for + 1 } else { 0 };
+        if solving_for >= MAX_BACKLOG {
+            while solver.solving() {
+                std::thread::sleep(std::time::Duration::from_millis(5));
+            }
+        }
     }
     epochs
 }
+
+/// Frames a test lets arrive while an epoch is made before it waits for the epoch.
+const MAX_BACKLOG: usize = 10;
 
 /// Of one epoch's points (one global scale, fitted as the median), how many lie more
 /// than `tolerance` (relative depth) off the surface.
