@@ -210,25 +210,27 @@ fn the_motion_term_recovers_a_drifting_centre() {
             .collect();
         super::median(ratios).expect("crossings")
     };
-    let mut worst_ratio: f64 = 0.0;
+    let mut worst: f64 = 0.0;
     for &(pose, laser, u) in &off_wall {
         let r = V3::new(u[0], u[1], 1.0);
         let v = with.poses[pose].plane(laser).expect("plane");
         let err = (s * v.dot(&r) / planes[2 * pose + laser].dot(&r) - 1.0).abs();
-        let sigma = with.depth_sigma(pose, laser, &ray(u));
-        assert!(sigma < 0.02, "frame {pose}: the motion term leaves {sigma}");
-        worst_ratio = worst_ratio.max(err / sigma);
-        let loose = without.depth_sigma(pose, laser, &ray(u));
-        // Without it, the crossings say nothing of the turn (their scatter along their
-        // own lines is not evidence).
-        assert!(
-            loose > 10.0 * sigma,
-            "frame {pose}: {loose} without motion, {sigma} with"
-        );
+        worst = worst.max(err);
+        // The crossings say nothing of the turn (their scatter along their own lines
+        // is not evidence), and the uncertainty reported is theirs: the hand's model
+        // places these points, it does not make them known.
+        for (est, what) in [(&with, "with"), (&without, "without")] {
+            let sigma = est.depth_sigma(pose, laser, &ray(u));
+            assert!(
+                sigma > 0.05,
+                "frame {pose}: {sigma} {what} the motion terms"
+            );
+        }
     }
+    // They are placed to 0.22 % (on this smooth path).
     assert!(
-        worst_ratio < 4.0,
-        "an error of {worst_ratio} standard deviations"
+        worst < 0.01,
+        "the motion term places the off-wall points {worst} off"
     );
     // The run's centres, across their axes (along them no crossing or plane tells).
     for pose in run {
@@ -391,6 +393,41 @@ fn a_single_wall_leaves_the_planes_undetermined() {
     let est = estimate(&ev, &start, &params).expect("estimate");
     // Off the wall (a point of the plane between the projector and the wall), nothing
     // is known.
+    let c = ev
+        .crossings
+        .iter()
+        .find(|c| c.a == 60 || c.b == 60)
+        .expect("a crossing of frame 30's laser 0");
+    let r = V3::new(c.u[0], c.u[1], 1.0);
+    let on_wall = r / scan.planes[30][0].dot(&r);
+    let x = scan.centres[30] + (on_wall - scan.centres[30]) * 0.6;
+    let sigma = est.depth_sigma(30, 0, &ray([x.x / x.z, x.y / x.z]));
+    assert!(sigma > 0.2, "{sigma}");
+}
+
+/// The same single wall with the hand's motion terms in the estimate: they hold the
+/// poses where the crossings do not, so the estimate is made, but the uncertainty it
+/// reports is the crossings' alone. Counted as evidence, the hand's model made a point
+/// off the wall read as known to 0.28 %, inside the cloud's 0.3 % rule, as it made 60
+/// frames over a table read as known to a quarter of their real error; no check can
+/// tell where the model is wrong.
+#[test]
+fn the_hand_model_does_not_make_a_single_wall_determined() {
+    let scene = Scene {
+        facets: vec![V3::new(0.05, -0.03, 0.35)],
+        window: [-0.6, 0.6, -0.45, 0.45],
+    };
+    let scan = path_scan(&PathSpec {
+        scene,
+        ..PathSpec::default()
+    });
+    let ev = evidence_of(&scan, 0.05, 5, |_, _| true);
+    let start = Start {
+        poses: true_poses(&scan),
+        focal_scale: 1.0,
+        spreads: spreads(0.05),
+    };
+    let est = estimate(&ev, &start, &EstimateParams::default()).expect("estimate");
     let c = ev
         .crossings
         .iter()
