@@ -403,7 +403,14 @@ pub fn reconstruct_scan(
     let calibration = calibration.as_ref();
     let fit = calibration.and_then(|c| Fit::of(c, predicted_px));
     let refused = calibration.and_then(|_| refusal(&out.stats, fit));
-    let warnings = doubts(calibration);
+    let mut warnings = doubts(calibration);
+    if calibration.is_some() {
+        warnings.extend(mostly_undetermined(
+            out.undetermined_points,
+            out.cloud.len(),
+            config.triangulate.max_depth_sigma,
+        ));
+    }
     for w in &warnings {
         tracing::warn!("{w}");
     }
@@ -458,6 +465,23 @@ fn doubts(calibration: Option<&solve::Calibration>) -> Vec<String> {
         ));
     }
     out
+}
+
+/// The doubt when most curve points are left out because their planes do not fix
+/// their depth (`undetermined` of them, against `kept` in the cloud): the cloud is then
+/// the part of the scene that the crossings fix, and the user should know that the
+/// rest was not lost to noise but to geometry.
+fn mostly_undetermined(undetermined: usize, kept: usize, max_sigma: f64) -> Option<String> {
+    (undetermined > kept).then(|| {
+        format!(
+            "{:.0} % of the curve points are left out because the crossings do not fix \
+             their depth to {:.2} % (one deviation): where the stripes crossed, the scene \
+             is nearly flat or the projector barely moved. The cloud is the part the \
+             crossings fix; sweep the cross over more relief, or move it more",
+            100.0 * undetermined as f64 / (undetermined + kept) as f64,
+            100.0 * max_sigma
+        )
+    })
 }
 
 #[cfg(test)]
