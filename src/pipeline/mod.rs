@@ -403,14 +403,7 @@ pub fn reconstruct_scan(
     let calibration = calibration.as_ref();
     let fit = calibration.and_then(|c| Fit::of(c, predicted_px));
     let refused = calibration.and_then(|_| refusal(&out.stats, fit));
-    let mut warnings = doubts(calibration);
-    if calibration.is_some() {
-        warnings.extend(mostly_undetermined(
-            out.undetermined_points,
-            out.cloud.len(),
-            config.triangulate.max_depth_sigma,
-        ));
-    }
+    let warnings = doubts(calibration, &out, config.triangulate.max_depth_sigma);
     for w in &warnings {
         tracing::warn!("{w}");
     }
@@ -444,8 +437,13 @@ pub fn reconstruct_scan(
 }
 
 /// Why a self-calibrated result is doubtful, in words for the log and the report: a
-/// focal scale too uncertain, and a second solution that fits alike.
-fn doubts(calibration: Option<&solve::Calibration>) -> Vec<String> {
+/// focal scale too uncertain, a second solution that fits alike, and most of the
+/// points left out by the depth rule (`max_sigma`) for `cloud`'s planes.
+fn doubts(
+    calibration: Option<&solve::Calibration>,
+    cloud: &triangulate::CloudOut,
+    max_sigma: f64,
+) -> Vec<String> {
     let Some(c) = calibration else {
         return Vec::new();
     };
@@ -464,6 +462,11 @@ fn doubts(calibration: Option<&solve::Calibration>) -> Vec<String> {
             100.0 * alt.median_depth_difference
         ));
     }
+    out.extend(mostly_undetermined(
+        cloud.undetermined_points,
+        cloud.cloud.len(),
+        max_sigma,
+    ));
     out
 }
 
