@@ -114,6 +114,24 @@ impl Cholesky {
         llt::solve::solve_in_place(self.l.as_ref(), x, Par::Seq, MemStack::new(&mut mem));
     }
 
+    /// `L⁻¹ X` in place, `A = L Lᵀ` (on one thread, as [`Self::solve`]).
+    pub(super) fn solve_lower_columns(&self, x: faer::MatMut<'_, f64>) {
+        faer::linalg::triangular_solve::solve_lower_triangular_in_place(
+            self.l.as_ref(),
+            x,
+            Par::Seq,
+        );
+    }
+
+    /// `L⁻ᵀ X` in place (on one thread, as [`Self::solve`]).
+    pub(super) fn solve_upper_columns(&self, x: faer::MatMut<'_, f64>) {
+        faer::linalg::triangular_solve::solve_upper_triangular_in_place(
+            self.l.transpose(),
+            x,
+            Par::Seq,
+        );
+    }
+
     /// `A⁻¹`, both triangles.
     pub(super) fn inverse(&self) -> Mat<f64> {
         let n = self.l.nrows();
@@ -176,6 +194,23 @@ mod tests {
                     "({i}, {j}): {}",
                     eye[(i, j)]
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn the_two_triangular_solves_compose_to_the_inverse() {
+        let n = 30;
+        let h = spd(n);
+        let c = Cholesky::of_lower(&h, 0.0, DenseThreads(1)).expect("factors");
+        // L⁻ᵀ L⁻¹ = A⁻¹.
+        let mut x = Mat::<f64>::identity(n, n);
+        c.solve_lower_columns(x.as_mut());
+        c.solve_upper_columns(x.as_mut());
+        let inv = c.inverse();
+        for i in 0..n {
+            for j in 0..n {
+                assert!((x[(i, j)] - inv[(i, j)]).abs() < 1e-9 * (1.0 + inv[(i, j)].abs()));
             }
         }
     }

@@ -905,6 +905,69 @@ fn scatter_information(
     spreads: &Spreads,
     cov: &Mat<f64>,
 ) -> (Vec<PoseMarginal>, Vec<usize>) {
+    let (c, counts) = scatter_matrix(layout, state, spreads);
+    let n = layout.n;
+    let t = &c * cov;
+    let blocks = pose_unknowns(layout)
+        .iter()
+        .map(|idx| {
+            PoseMarginal::from_fn(|a, b| match (idx[a], idx[b]) {
+                // [Σ C Σ]_{ia ib} = Σ_r Σ_{r ia} (C Σ)_{r ib}.
+                (Some(ia), Some(ib)) => {
+                    let (col_s, col_t) = (cov.col_as_slice(ia), t.col_as_slice(ib));
+                    col_s.iter().zip(col_t).take(n).map(|(x, y)| x * y).sum()
+                }
+                _ => 0.0,
+            })
+        })
+        .collect();
+    (blocks, counts)
+}
+
+/// Per pose, its unknowns in the order of its marginal: six of its own, then the focal
+/// scale's when it is estimated.
+fn pose_unknowns(layout: &Layout) -> Vec<[Option<usize>; 7]> {
+    let focal = layout.focal_index();
+    (0..layout.evidence.num_poses())
+        .map(|p| std::array::from_fn(|i| if i < 6 { Some(p * POSE_DOF + i) } else { focal }))
+        .collect()
+}
+
+/// `est` with its scatter parts bounded by the crossings' information in the whole
+/// space ([`super::scatter`]): for the final estimate, where the bound's cost (one
+/// eigendecomposition of the joint system) is paid once.
+pub fn with_bounded_scatter(
+    evidence: &Evidence,
+    mut est: Estimate,
+    params: &EstimateParams,
+) -> Estimate {
+    let full = Layout::new(evidence, params);
+    let layout = Layout {
+        evidence,
+        params,
+        triples: Vec::new(),
+        n: full.n,
+    };
+    let state = State {
+        poses: est.poses.clone(),
+        focal_scale: est.focal_scale,
+    };
+    let (mut h, _, _) = layout.normal_equations(&state, &est.spreads);
+    let (_, gauge) = layout.gauge(&state, &layout.rays(state.focal_scale));
+    regularise(&mut h, &gauge);
+    let Some(chol) = Cholesky::of_lower(&h, 0.0, params.threads) else {
+        return est;
+    };
+    let (c, _) = scatter_matrix(&layout, &state, &est.spreads);
+    if let Some(blocks) = super::scatter::bounded_blocks(&chol, &c, &pose_unknowns(&layout)) {
+        est.scatter = blocks;
+    }
+    est
+}
+
+/// The scatter matrix `C` of [`scatter_information`] (both triangles), and each pose's
+/// number of crossings of weight at least one half.
+fn scatter_matrix(layout: &Layout, state: &State, spreads: &Spreads) -> (Mat<f64>, Vec<usize>) {
     let ev = layout.evidence;
     let n = layout.n;
     let rays = layout.rays(state.focal_scale);
@@ -947,25 +1010,7 @@ fn scatter_information(
             c[(i, j)] = v;
         }
     }
-    let t = &c * cov;
-    let focal = layout.focal_index();
-    let blocks = (0..ev.num_poses())
-        .map(|p| {
-            let idx: Vec<usize> = (0..7)
-                .filter_map(|i| if i < 6 { Some(p * POSE_DOF + i) } else { focal })
-                .collect();
-            let mut out = PoseMarginal::zeros();
-            for (a, &ia) in idx.iter().enumerate() {
-                for (b, &ib) in idx.iter().enumerate() {
-                    // [Σ C Σ]_{ia ib} = Σ_r Σ_{r ia} (C Σ)_{r ib}.
-                    let (col_s, col_t) = (cov.col_as_slice(ia), t.col_as_slice(ib));
-                    out[(a, b)] = col_s.iter().zip(col_t).map(|(x, y)| x * y).sum();
-                }
-            }
-            out
-        })
-        .collect();
-    (blocks, counts)
+    (c, counts)
 }
 
 /// The residuals of an estimate by kind, in their own units: crossings strong and faint

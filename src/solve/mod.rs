@@ -53,6 +53,7 @@ pub mod nullspace;
 pub mod ortho;
 pub mod outside;
 pub mod pose;
+mod scatter;
 mod screen;
 pub mod seed;
 pub mod subset;
