@@ -393,7 +393,7 @@ fn calibrate_with(
         .ok_or(SolveError::Degenerate("no start for the joint estimate"))?;
     let est = super::folds::reseed_folds(sub, est, &eparams);
     cancel.check()?;
-    let est = estimate::with_bounded_scatter(sub, est, &eparams);
+    let est = super::scatter::with_bounded_scatter(sub, est, &eparams);
     let focal_scale_std = params
         .estimate_focal
         .then(|| est.marginals.first().map(|m| m[(6, 6)].max(0.0).sqrt()))

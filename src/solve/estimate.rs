@@ -4,7 +4,7 @@
 //! the estimator's own information.
 //!
 //! Owns the minimisation and the covariance; the residual formulas are in
-//! [`super::terms`], the parametrisation in [`super::pose`], the start in
+//! [`super::terms`], the scatter rule's information in [`super::scatter`], the parametrisation in [`super::pose`], the start in
 //! [`super::init`].
 //!
 //! # Cost
@@ -203,18 +203,18 @@ pub struct Start {
 
 /// Three consecutive poses and their frame steps.
 #[derive(Clone, Copy, Debug)]
-struct Triple {
+pub(super) struct Triple {
     poses: [u32; 3],
     h: [f64; 2],
 }
 
 /// The fixed structure of a problem: which terms exist and where their unknowns are.
-struct Layout<'a> {
-    evidence: &'a Evidence,
-    params: &'a EstimateParams,
-    triples: Vec<Triple>,
+pub(super) struct Layout<'a> {
+    pub(super) evidence: &'a Evidence,
+    pub(super) params: &'a EstimateParams,
+    pub(super) triples: Vec<Triple>,
     /// Number of unknowns: six per pose, one more with the focal scale.
-    n: usize,
+    pub(super) n: usize,
 }
 
 /// Floor of every spread, relative to a typical value of its kind: below it the data
@@ -241,7 +241,7 @@ const SCATTER_DEVIATIONS: f64 = 3.0;
 pub(super) const RIDGE: f64 = 1e-10;
 
 impl<'a> Layout<'a> {
-    fn new(evidence: &'a Evidence, params: &'a EstimateParams) -> Self {
+    pub(super) fn new(evidence: &'a Evidence, params: &'a EstimateParams) -> Self {
         let f = &evidence.pose_frames;
         let triples = if params.motion {
             (2..f.len())
@@ -262,14 +262,14 @@ impl<'a> Layout<'a> {
         }
     }
 
-    fn focal_index(&self) -> Option<usize> {
+    pub(super) fn focal_index(&self) -> Option<usize> {
         self.params
             .estimate_focal
             .then_some(POSE_DOF * self.evidence.num_poses())
     }
 
     /// The crossing term of observation `k`, or `None` where it cannot be evaluated.
-    fn crossing(
+    pub(super) fn crossing(
         &self,
         state: &State,
         k: usize,
@@ -290,7 +290,7 @@ impl<'a> Layout<'a> {
         )
     }
 
-    fn rays(&self, lambda: f64) -> Vec<Option<Ray>> {
+    pub(super) fn rays(&self, lambda: f64) -> Vec<Option<Ray>> {
         self.evidence
             .crossings
             .iter()
@@ -306,7 +306,7 @@ impl<'a> Layout<'a> {
         )
     }
 
-    fn crossing_loss(&self) -> Loss {
+    pub(super) fn crossing_loss(&self) -> Loss {
         Loss::Cauchy(self.params.crossing_loss)
     }
 
@@ -348,7 +348,11 @@ impl<'a> Layout<'a> {
 
     /// The normal equations `H δ = −g` at `state` (robust weights from its residuals) and
     /// the robust cost there.
-    fn normal_equations(&self, state: &State, spreads: &Spreads) -> (Mat<f64>, Vec<f64>, f64) {
+    pub(super) fn normal_equations(
+        &self,
+        state: &State,
+        spreads: &Spreads,
+    ) -> (Mat<f64>, Vec<f64>, f64) {
         let n = self.n;
         let mut h = Mat::<f64>::zeros(n, n);
         let mut g = vec![0.0; n];
@@ -420,7 +424,14 @@ impl<'a> Layout<'a> {
 /// `H += w j jᵀ` (its lower triangle, row ≥ column) and `g += w j e` over the unknowns
 /// `idx` (one term's row; an unknown may appear twice, as when both planes of a crossing
 /// are one pose's).
-fn accumulate(h: &mut Mat<f64>, g: &mut [f64], idx: &[usize], jac: &[f64], w: f64, e: f64) {
+pub(super) fn accumulate(
+    h: &mut Mat<f64>,
+    g: &mut [f64],
+    idx: &[usize],
+    jac: &[f64],
+    w: f64,
+    e: f64,
+) {
     for (&jb, &ib) in jac.iter().zip(idx) {
         if jb == 0.0 {
             continue;
@@ -438,9 +449,9 @@ fn accumulate(h: &mut Mat<f64>, g: &mut [f64], idx: &[usize], jac: &[f64], w: f6
 
 /// The poses and focal scale being estimated.
 #[derive(Clone, Debug)]
-struct State {
-    poses: Vec<CrossPose>,
-    focal_scale: f64,
+pub(super) struct State {
+    pub(super) poses: Vec<CrossPose>,
+    pub(super) focal_scale: f64,
 }
 
 impl State {
@@ -481,7 +492,7 @@ impl Layout<'_> {
     /// pin it. Rays within [`GAUGE_MIN_RAY_PLANE_SIN`] of their plane are left out: there
     /// the log depth turns with the plane without bound, and a few such crossings would
     /// make the gauge hold their depths instead of the scale.
-    fn gauge(&self, state: &State, rays: &[Option<Ray>]) -> (f64, Vec<f64>) {
+    pub(super) fn gauge(&self, state: &State, rays: &[Option<Ray>]) -> (f64, Vec<f64>) {
         let ev = self.evidence;
         let mut grad = vec![0.0; self.n];
         let (mut sum, mut count) = (0.0, 0usize);
@@ -536,7 +547,7 @@ impl Layout<'_> {
 /// Adds the gauge row `gauge` (weight: the mean diagonal) and the ridge to `h`'s lower
 /// triangle, the only one the factorisations read (`Side::Lower`): the upper triangle
 /// stays as it was, so `h` is not symmetric afterwards.
-fn regularise(h: &mut Mat<f64>, gauge: &[f64]) {
+pub(super) fn regularise(h: &mut Mat<f64>, gauge: &[f64]) {
     let n = h.nrows();
     let mean_diag = (0..n).map(|i| h[(i, i)]).sum::<f64>() / n.max(1) as f64;
     let norm = gauge.iter().map(|x| x * x).sum::<f64>().sqrt();
@@ -849,7 +860,8 @@ pub fn estimate(
             "the crossings' information matrix does not factor",
         ))?
     };
-    let (scatter, scatter_crossings) = scatter_information(&layout, &state, &spreads, &cov);
+    let (scatter, scatter_crossings) =
+        super::scatter::scatter_information(&layout, &state, &spreads, &cov);
     let fi = layout.focal_index();
     let marginals = (0..evidence.num_poses())
         .map(|p| {
@@ -884,133 +896,6 @@ pub fn estimate(
         covariance: cov,
         joint_of_pose: (0..evidence.num_poses() as u32).map(Some).collect(),
     })
-}
-
-/// The information that the crossings' scatter along their own lines alone would give.
-///
-/// A crossing's residual is its distance from the line `l` where its two planes meet.
-/// Its derivatives depend on where along `l` the crossing lies, and a noisy crossing lies
-/// off its true place along `l` by noise: the derivatives carry a term `(t̂ · δ) t̂·∂n̂/∂p`
-/// (`δ` the crossing's error, `t̂` the line's direction, `n̂` its normal). Its square
-/// enters Gauss–Newton's information as if it were evidence, about one radian⁻² of the
-/// line's turn per crossing, in every direction where the crossings themselves say
-/// nothing: a plane whose crossings all lie on one line of a wall would read as known to
-/// about `1/√n` radians of turn. Its expectation, with the crossings' scatter along `l`
-/// taken equal to their measured scatter across it, is `C = Σ_k w_k b_k b_kᵀ`, `b_k` the
-/// line's turn rate. Mapped as the marginals are, `[Σ C Σ]_ff` per pose. Also returns
-/// each pose's number of crossings (of weight at least one half).
-fn scatter_information(
-    layout: &Layout,
-    state: &State,
-    spreads: &Spreads,
-    cov: &Mat<f64>,
-) -> (Vec<PoseMarginal>, Vec<usize>) {
-    let (c, counts) = scatter_matrix(layout, state, spreads);
-    let n = layout.n;
-    let t = &c * cov;
-    let blocks = pose_unknowns(layout)
-        .iter()
-        .map(|idx| {
-            PoseMarginal::from_fn(|a, b| match (idx[a], idx[b]) {
-                // [Σ C Σ]_{ia ib} = Σ_r Σ_{r ia} (C Σ)_{r ib}.
-                (Some(ia), Some(ib)) => {
-                    let (col_s, col_t) = (cov.col_as_slice(ia), t.col_as_slice(ib));
-                    col_s.iter().zip(col_t).take(n).map(|(x, y)| x * y).sum()
-                }
-                _ => 0.0,
-            })
-        })
-        .collect();
-    (blocks, counts)
-}
-
-/// Per pose, its unknowns in the order of its marginal: six of its own, then the focal
-/// scale's when it is estimated.
-fn pose_unknowns(layout: &Layout) -> Vec<[Option<usize>; 7]> {
-    let focal = layout.focal_index();
-    (0..layout.evidence.num_poses())
-        .map(|p| std::array::from_fn(|i| if i < 6 { Some(p * POSE_DOF + i) } else { focal }))
-        .collect()
-}
-
-/// `est` with its scatter parts bounded by the crossings' information in the whole
-/// space ([`super::scatter`]): for the final estimate, where the bound's cost (one
-/// eigendecomposition of the joint system) is paid once.
-pub fn with_bounded_scatter(
-    evidence: &Evidence,
-    mut est: Estimate,
-    params: &EstimateParams,
-) -> Estimate {
-    let full = Layout::new(evidence, params);
-    let layout = Layout {
-        evidence,
-        params,
-        triples: Vec::new(),
-        n: full.n,
-    };
-    let state = State {
-        poses: est.poses.clone(),
-        focal_scale: est.focal_scale,
-    };
-    let (mut h, _, _) = layout.normal_equations(&state, &est.spreads);
-    let (_, gauge) = layout.gauge(&state, &layout.rays(state.focal_scale));
-    regularise(&mut h, &gauge);
-    let Some(chol) = Cholesky::of_lower(&h, 0.0, params.threads) else {
-        return est;
-    };
-    let (c, _) = scatter_matrix(&layout, &state, &est.spreads);
-    if let Some(blocks) = super::scatter::bounded_blocks(&chol, &c, &pose_unknowns(&layout)) {
-        est.scatter = blocks;
-    }
-    est
-}
-
-/// The scatter matrix `C` of [`scatter_information`] (both triangles), and each pose's
-/// number of crossings of weight at least one half.
-fn scatter_matrix(layout: &Layout, state: &State, spreads: &Spreads) -> (Mat<f64>, Vec<usize>) {
-    let ev = layout.evidence;
-    let n = layout.n;
-    let rays = layout.rays(state.focal_scale);
-    let loss = layout.crossing_loss();
-    let mut c = Mat::<f64>::zeros(n, n);
-    let mut g = vec![0.0; n];
-    let mut counts = vec![0usize; ev.num_poses()];
-    for k in 0..ev.crossings.len() {
-        let Some(t) = layout.crossing(state, k, &rays) else {
-            continue;
-        };
-        let o = &ev.crossings[k];
-        let sigma = spreads.crossing_px[o.class as usize];
-        let w = loss.weight(t.e / sigma);
-        let (qa, qb) = (
-            ev.planes[o.a as usize].pose as usize,
-            ev.planes[o.b as usize].pose as usize,
-        );
-        if w >= 0.5 {
-            counts[qa] += 1;
-            if qb != qa {
-                counts[qb] += 1;
-            }
-        }
-        let mut idx = [0usize; 12];
-        let mut jac = [0.0; 12];
-        for i in 0..6 {
-            idx[i] = qa * POSE_DOF + i;
-            jac[i] = t.ta[i];
-            idx[6 + i] = qb * POSE_DOF + i;
-            jac[6 + i] = t.tb[i];
-        }
-        // In units of the residual's noise: b's scatter term is (t̂·δ) b with t̂·δ of
-        // the same spread σ as the residual, so its information is w b bᵀ.
-        accumulate(&mut c, &mut g, &idx, &jac, w, 0.0);
-    }
-    for j in 0..n {
-        for i in 0..j {
-            let v = c[(j, i)];
-            c[(i, j)] = v;
-        }
-    }
-    (c, counts)
 }
 
 /// The residuals of an estimate by kind, in their own units: crossings strong and faint

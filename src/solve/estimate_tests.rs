@@ -371,6 +371,12 @@ fn a_plane_with_collinear_crossings_gets_a_large_uncertainty() {
 /// crossing on one 3D plane) reports it, of a point of frame 30's laser 0 off the wall:
 /// between the projector and the wall.
 fn single_wall_sigma_off_the_wall(params: &EstimateParams) -> f64 {
+    single_wall_sigma(params, false)
+}
+
+/// [`single_wall_sigma_off_the_wall`], with the scatter bounded in the whole space
+/// first when `bound`.
+fn single_wall_sigma(params: &EstimateParams, bound: bool) -> f64 {
     let scene = Scene {
         facets: vec![V3::new(0.05, -0.03, 0.35)],
         window: [-0.6, 0.6, -0.45, 0.45],
@@ -385,7 +391,10 @@ fn single_wall_sigma_off_the_wall(params: &EstimateParams) -> f64 {
         focal_scale: 1.0,
         spreads: spreads(0.05),
     };
-    let est = estimate(&ev, &start, params).expect("estimate");
+    let mut est = estimate(&ev, &start, params).expect("estimate");
+    if bound {
+        est = super::scatter::with_bounded_scatter(&ev, est, params);
+    }
     let c = ev
         .crossings
         .iter()
@@ -419,6 +428,20 @@ fn a_single_wall_leaves_the_planes_undetermined() {
 fn the_hand_model_does_not_make_a_single_wall_determined() {
     let sigma = single_wall_sigma_off_the_wall(&EstimateParams::default());
     assert!(sigma > 0.2, "{sigma}");
+}
+
+/// The bound on the scatter only takes out what exceeds the information: where the
+/// crossings say nothing, it does not make the planes known either.
+#[test]
+fn the_scatter_bound_does_not_make_a_single_wall_determined() {
+    for motion in [false, true] {
+        let params = EstimateParams {
+            motion,
+            ..EstimateParams::default()
+        };
+        let sigma = single_wall_sigma(&params, true);
+        assert!(sigma > 0.2, "motion {motion}: {sigma}");
+    }
 }
 
 /// Three crosses: the orthogonality of each fixes the shift `w` to a sphere, and three
@@ -822,4 +845,90 @@ fn a_walking_hand_tells_the_truth_from_its_twin() {
             "drift {drift}: {alternatives:?}"
         );
     }
+}
+
+/// A table-like sweep of 40 frames over two facets folded by `fold` (about 18° at 0.1).
+/// Per crossing, on its first plane: the depth deviation before and after the
+/// whole-space bound on the scatter, and the true relative depth error there (after the
+/// one global scale).
+fn shallow_fold(fold: f64) -> Vec<(f64, f64, f64)> {
+    let floor = V3::new(0.05, -0.03, 0.35);
+    let scene = Scene {
+        facets: vec![floor, floor + V3::new(fold, 0.0, -0.02)],
+        window: [-0.6, 0.6, -0.45, 0.45],
+    };
+    let scan = path_scan(&PathSpec {
+        scene,
+        frames: 40,
+        ..PathSpec::default()
+    });
+    let ev = evidence_of(&scan, 0.05, 5, |_, _| true);
+    let params = EstimateParams::default();
+    let start = Start {
+        poses: true_poses(&scan),
+        focal_scale: 1.0,
+        spreads: spreads(0.05),
+    };
+    let est = estimate(&ev, &start, &params).expect("estimate");
+    let bounded = super::scatter::with_bounded_scatter(&ev, est.clone(), &params);
+    let mut out = Vec::new();
+    let mut ratios = Vec::new();
+    for c in &ev.crossings {
+        let p = &ev.planes[c.a as usize];
+        let (pose, laser) = (p.pose as usize, usize::from(p.laser));
+        let r = V3::new(c.u[0], c.u[1], 1.0);
+        let truth = scan.planes[pose][laser].dot(&r);
+        let Some(v) = est.poses[pose].plane(laser) else {
+            continue;
+        };
+        let got = v.dot(&r);
+        ratios.push(got / truth);
+        out.push((
+            est.depth_sigma(pose, laser, &ray(c.u)),
+            bounded.depth_sigma(pose, laser, &ray(c.u)),
+            got / truth,
+        ));
+    }
+    ratios.sort_by(f64::total_cmp);
+    let scale = ratios[ratios.len() / 2];
+    out.iter()
+        .map(|&(a, b, q)| (a, b, (q / scale - 1.0).abs()))
+        .collect()
+}
+
+/// The share of `pts` (deviation, true error) whose deviation passes the cloud's rule,
+/// and how many of those are off by more than three of their deviations.
+fn determined(pts: impl Iterator<Item = (f64, f64)>) -> (f64, usize) {
+    let (mut n, mut kept, mut over) = (0usize, 0usize, 0usize);
+    for (sigma, err) in pts {
+        n += 1;
+        if sigma < 0.003 {
+            kept += 1;
+            over += usize::from(err > 3.0 * sigma);
+        }
+    }
+    (kept as f64 / n.max(1) as f64, over)
+}
+
+/// A sweep over two facets folded by a few degrees, as a table with low boxes is: the
+/// crossings hold the turn of each pose about its stripes' traces only weakly, the
+/// covariance there is huge, and the scatter rule's `Σ C Σ` read more scatter than the
+/// information, so that a third of the points the crossings fix were left out. Bounded,
+/// every share is at most one: the points come back, and their deviations stay honest.
+#[test]
+fn the_scatter_bound_keeps_what_a_shallow_fold_determines() {
+    let pts = shallow_fold(0.1);
+    for &(before, after, _) in &pts {
+        assert!(
+            after <= before * (1.0 + 1e-9),
+            "the bound raised a deviation"
+        );
+    }
+    let (share_before, _) = determined(pts.iter().map(|p| (p.0, p.2)));
+    let (share_after, over) = determined(pts.iter().map(|p| (p.1, p.2)));
+    assert!(
+        share_after > share_before + 0.2,
+        "{share_before} -> {share_after}"
+    );
+    assert!(over * 100 <= pts.len(), "{over} points off by over 3σ");
 }

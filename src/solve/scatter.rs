@@ -1,6 +1,7 @@
-//! The bound on the scatter information: the part of the information that the
-//! crossings' scatter along their own lines would give (see [`super::estimate`]'s
-//! `scatter_information`) can be at most the information itself.
+//! The scatter rule's information: the part of the estimate's information that the
+//! crossings' scatter along their own lines would give ([`scatter_information`]), which
+//! [`super::estimate::depth_sigma_of`] does not count as evidence, and its bound: that
+//! part can be at most the information itself ([`with_bounded_scatter`]).
 //!
 //! The scatter part is an expectation, `C = Σ_k w_k b_k b_kᵀ`, with the crossings'
 //! scatter along their lines taken equal to their measured scatter across them. Where
@@ -23,7 +24,138 @@
 use faer::{Mat, Side};
 
 use super::dense::Cholesky;
-use super::estimate::PoseMarginal;
+use super::estimate::{
+    accumulate, regularise, Estimate, EstimateParams, Layout, PoseMarginal, Spreads, State,
+};
+use super::evidence::Evidence;
+use super::pose::POSE_DOF;
+
+/// The information that the crossings' scatter along their own lines alone would give.
+///
+/// A crossing's residual is its distance from the line `l` where its two planes meet.
+/// Its derivatives depend on where along `l` the crossing lies, and a noisy crossing lies
+/// off its true place along `l` by noise: the derivatives carry a term `(t̂ · δ) t̂·∂n̂/∂p`
+/// (`δ` the crossing's error, `t̂` the line's direction, `n̂` its normal). Its square
+/// enters Gauss–Newton's information as if it were evidence, about one radian⁻² of the
+/// line's turn per crossing, in every direction where the crossings themselves say
+/// nothing: a plane whose crossings all lie on one line of a wall would read as known to
+/// about `1/√n` radians of turn. Its expectation, with the crossings' scatter along `l`
+/// taken equal to their measured scatter across it, is `C = Σ_k w_k b_k b_kᵀ`, `b_k` the
+/// line's turn rate. Mapped as the marginals are, `[Σ C Σ]_ff` per pose. Also returns
+/// each pose's number of crossings (of weight at least one half).
+pub(super) fn scatter_information(
+    layout: &Layout,
+    state: &State,
+    spreads: &Spreads,
+    cov: &Mat<f64>,
+) -> (Vec<PoseMarginal>, Vec<usize>) {
+    let (c, counts) = scatter_matrix(layout, state, spreads);
+    let n = layout.n;
+    let t = &c * cov;
+    let blocks = pose_unknowns(layout)
+        .iter()
+        .map(|idx| {
+            PoseMarginal::from_fn(|a, b| match (idx[a], idx[b]) {
+                // [Σ C Σ]_{ia ib} = Σ_r Σ_{r ia} (C Σ)_{r ib}.
+                (Some(ia), Some(ib)) => {
+                    let (col_s, col_t) = (cov.col_as_slice(ia), t.col_as_slice(ib));
+                    col_s.iter().zip(col_t).take(n).map(|(x, y)| x * y).sum()
+                }
+                _ => 0.0,
+            })
+        })
+        .collect();
+    (blocks, counts)
+}
+
+/// Per pose, its unknowns in the order of its marginal: six of its own, then the focal
+/// scale's when it is estimated.
+fn pose_unknowns(layout: &Layout) -> Vec<[Option<usize>; 7]> {
+    let focal = layout.focal_index();
+    (0..layout.evidence.num_poses())
+        .map(|p| std::array::from_fn(|i| if i < 6 { Some(p * POSE_DOF + i) } else { focal }))
+        .collect()
+}
+
+/// `est` with its scatter parts bounded by the crossings' information in the whole
+/// space ([`super::scatter`]): for the final estimate, where the bound's cost (one
+/// eigendecomposition of the joint system) is paid once.
+pub fn with_bounded_scatter(
+    evidence: &Evidence,
+    mut est: Estimate,
+    params: &EstimateParams,
+) -> Estimate {
+    let full = Layout::new(evidence, params);
+    let layout = Layout {
+        evidence,
+        params,
+        triples: Vec::new(),
+        n: full.n,
+    };
+    let state = State {
+        poses: est.poses.clone(),
+        focal_scale: est.focal_scale,
+    };
+    let (mut h, _, _) = layout.normal_equations(&state, &est.spreads);
+    let (_, gauge) = layout.gauge(&state, &layout.rays(state.focal_scale));
+    regularise(&mut h, &gauge);
+    let Some(chol) = Cholesky::of_lower(&h, 0.0, params.threads) else {
+        return est;
+    };
+    let (c, _) = scatter_matrix(&layout, &state, &est.spreads);
+    if let Some(blocks) = super::scatter::bounded_blocks(&chol, &c, &pose_unknowns(&layout)) {
+        est.scatter = blocks;
+    }
+    est
+}
+
+/// The scatter matrix `C` of [`scatter_information`] (both triangles), and each pose's
+/// number of crossings of weight at least one half.
+fn scatter_matrix(layout: &Layout, state: &State, spreads: &Spreads) -> (Mat<f64>, Vec<usize>) {
+    let ev = layout.evidence;
+    let n = layout.n;
+    let rays = layout.rays(state.focal_scale);
+    let loss = layout.crossing_loss();
+    let mut c = Mat::<f64>::zeros(n, n);
+    let mut g = vec![0.0; n];
+    let mut counts = vec![0usize; ev.num_poses()];
+    for k in 0..ev.crossings.len() {
+        let Some(t) = layout.crossing(state, k, &rays) else {
+            continue;
+        };
+        let o = &ev.crossings[k];
+        let sigma = spreads.crossing_px[o.class as usize];
+        let w = loss.weight(t.e / sigma);
+        let (qa, qb) = (
+            ev.planes[o.a as usize].pose as usize,
+            ev.planes[o.b as usize].pose as usize,
+        );
+        if w >= 0.5 {
+            counts[qa] += 1;
+            if qb != qa {
+                counts[qb] += 1;
+            }
+        }
+        let mut idx = [0usize; 12];
+        let mut jac = [0.0; 12];
+        for i in 0..6 {
+            idx[i] = qa * POSE_DOF + i;
+            jac[i] = t.ta[i];
+            idx[6 + i] = qb * POSE_DOF + i;
+            jac[6 + i] = t.tb[i];
+        }
+        // In units of the residual's noise: b's scatter term is (t̂·δ) b with t̂·δ of
+        // the same spread σ as the residual, so its information is w b bᵀ.
+        accumulate(&mut c, &mut g, &idx, &jac, w, 0.0);
+    }
+    for j in 0..n {
+        for i in 0..j {
+            let v = c[(j, i)];
+            c[(i, j)] = v;
+        }
+    }
+    (c, counts)
+}
 
 /// Per pose, `[Σ C' Σ]` over its unknowns `blocks[p]` (`None`: an unknown not estimated,
 /// the focal scale's when it is fixed), `C'` the scatter matrix `c` bounded by the
