@@ -350,3 +350,47 @@ fn realistic_frames_without_background() {
     assert!(score.recall() >= 0.9, "recall {}", score.recall());
     assert!(score.stray_share() <= 0.35, "stray {}", score.stray_share());
 }
+
+/// Realistic table 18's frame 18: a box in the blue laser's own hue, checkered with
+/// squares foreshortened below the local background's window, and no laser-off frame.
+/// The squares the opening's window does not fit leak into the excess as bands of the
+/// laser's hue along their edges, offset from the edge by its blur: sampled two pixels
+/// to either side, the step across such a band caught about half of the edge's
+/// contrast, less than the band's strength, and 30 % of the frame's points were such
+/// bands. Sampled four pixels out, the step is the edge's whole contrast.
+#[test]
+fn bands_along_the_edges_of_a_laser_hued_board_are_not_stripes() {
+    let mut drawn = draw_realistic(18, 40);
+    if let FrameFormat::Jpeg { quality } = drawn.format {
+        drawn.params.jpeg_quality = Some(quality);
+    }
+    let sim = Simulator::new(&drawn.spec, &drawn.params).expect("sim");
+    let cam = sim.camera().clone();
+    let params = ExtractParams {
+        lasers: LaserColour::named(drawn.spec.projector.colours.iter().map(|c| c.name())),
+        ..ExtractParams::default()
+    };
+    let mut ex = Extractor::new(&params, &cam).expect("extractor");
+    let mut img = RgbImage::new(cam.width, cam.height);
+    let mut lit = vec![0u8; (cam.width * cam.height) as usize];
+    sim.render_frame_into(18, &mut img, Some(&mut lit));
+    let curves = ex.extract(&img, &Background::local(cam.width, cam.height));
+    let mut score = Score::default();
+    score.add(
+        &sim,
+        18,
+        &lit,
+        (5.0 * drawn.params.noise_sigma) as u8,
+        &curves,
+    );
+    eprintln!(
+        "table 18, frame 18: recall {:.3}, stray {} of {}",
+        score.recall(),
+        score.stray,
+        score.points
+    );
+    // Recall 0.709 either way; strays 412 of 1,392 points sampled at 2 px, 190 of
+    // 1,170 at 4 px (the rest are other mechanisms: docs/accuracy.md).
+    assert!(score.recall() >= 0.7, "recall {}", score.recall());
+    assert!(score.stray_share() <= 0.2, "stray {}", score.stray_share());
+}
