@@ -299,6 +299,51 @@ fn one_laser_with_two_expected_is_not_doubled() {
     assert!(extractors.iter().all(Extractor::one_laser_absent));
 }
 
+/// A realistic scan ([`draw_realistic`]) in air, and an extractor for its lasers
+/// against the local background (no laser-off frame).
+struct Realistic {
+    sim: Simulator,
+    ex: Extractor,
+    noise_sigma: f64,
+}
+
+impl Realistic {
+    /// Scan `seed`; `None` under water.
+    fn in_air(seed: u64) -> Option<Self> {
+        let mut drawn = draw_realistic(seed, 40);
+        if drawn.spec.medium == Medium::Water {
+            return None;
+        }
+        if let FrameFormat::Jpeg { quality } = drawn.format {
+            drawn.params.jpeg_quality = Some(quality);
+        }
+        let sim = Simulator::new(&drawn.spec, &drawn.params).expect("sim");
+        let params = ExtractParams {
+            lasers: LaserColour::named(drawn.spec.projector.colours.iter().map(|c| c.name())),
+            ..ExtractParams::default()
+        };
+        let ex = Extractor::new(&params, sim.camera()).expect("extractor");
+        Some(Self {
+            sim,
+            ex,
+            noise_sigma: drawn.params.noise_sigma,
+        })
+    }
+
+    /// Renders frame `index`, extracts it against its local background, and scores it.
+    fn extract_into(&mut self, index: usize, score: &mut Score) {
+        let cam = self.sim.camera();
+        let mut img = RgbImage::new(cam.width, cam.height);
+        let mut lit = vec![0u8; (cam.width * cam.height) as usize];
+        self.sim.render_frame_into(index, &mut img, Some(&mut lit));
+        let curves = self
+            .ex
+            .extract(&img, &Background::local(cam.width, cam.height));
+        let threshold = (5.0 * self.noise_sigma) as u8;
+        score.add(&self.sim, index, &lit, threshold, &curves);
+    }
+}
+
 /// Realistic simulated scans (lit rooms, clutter and tables; none under water) with
 /// no laser-off frame: recall of lit pixels within 1 px, points off every stripe. The
 /// bounds guard what the local background gives today (recall ~0.9, stray ~0.05-0.3:
@@ -311,34 +356,12 @@ fn realistic_frames_without_background() {
     let mut seed = 100;
     while scans < 2 {
         seed += 1;
-        let mut drawn = draw_realistic(seed, 40);
-        if drawn.spec.medium == Medium::Water {
+        let Some(mut scan) = Realistic::in_air(seed) else {
             continue;
-        }
-        scans += 1;
-        if let FrameFormat::Jpeg { quality } = drawn.format {
-            drawn.params.jpeg_quality = Some(quality);
-        }
-        let sim = Simulator::new(&drawn.spec, &drawn.params).expect("sim");
-        let cam = sim.camera().clone();
-        let params = ExtractParams {
-            lasers: LaserColour::named(drawn.spec.projector.colours.iter().map(|c| c.name())),
-            ..ExtractParams::default()
         };
-        let mut ex = Extractor::new(&params, &cam).expect("extractor");
-        let local = Background::local(cam.width, cam.height);
+        scans += 1;
         for index in [9, 22] {
-            let mut img = RgbImage::new(cam.width, cam.height);
-            let mut lit = vec![0u8; (cam.width * cam.height) as usize];
-            sim.render_frame_into(index, &mut img, Some(&mut lit));
-            let curves = ex.extract(&img, &local);
-            score.add(
-                &sim,
-                index,
-                &lit,
-                (5.0 * drawn.params.noise_sigma) as u8,
-                &curves,
-            );
+            scan.extract_into(index, &mut score);
         }
     }
     eprintln!(
@@ -360,29 +383,9 @@ fn realistic_frames_without_background() {
 /// bands. Sampled four pixels out, the step is the edge's whole contrast.
 #[test]
 fn bands_along_the_edges_of_a_laser_hued_board_are_not_stripes() {
-    let mut drawn = draw_realistic(18, 40);
-    if let FrameFormat::Jpeg { quality } = drawn.format {
-        drawn.params.jpeg_quality = Some(quality);
-    }
-    let sim = Simulator::new(&drawn.spec, &drawn.params).expect("sim");
-    let cam = sim.camera().clone();
-    let params = ExtractParams {
-        lasers: LaserColour::named(drawn.spec.projector.colours.iter().map(|c| c.name())),
-        ..ExtractParams::default()
-    };
-    let mut ex = Extractor::new(&params, &cam).expect("extractor");
-    let mut img = RgbImage::new(cam.width, cam.height);
-    let mut lit = vec![0u8; (cam.width * cam.height) as usize];
-    sim.render_frame_into(18, &mut img, Some(&mut lit));
-    let curves = ex.extract(&img, &Background::local(cam.width, cam.height));
+    let mut scan = Realistic::in_air(18).expect("table 18 is in air");
     let mut score = Score::default();
-    score.add(
-        &sim,
-        18,
-        &lit,
-        (5.0 * drawn.params.noise_sigma) as u8,
-        &curves,
-    );
+    scan.extract_into(18, &mut score);
     eprintln!(
         "table 18, frame 18: recall {:.3}, stray {} of {}",
         score.recall(),
