@@ -90,12 +90,13 @@ fn main() {
                     let mut one = Score::default();
                     one.add(&sim, index, &lit, min_contrast, &curves);
                     eprintln!(
-                        "  frame {index} {}: recall {:.3} stray {}/{} {:?}",
+                        "  scan {seed} frame {index} {}: recall {:.3} stray {}/{} err {:.4} n {}",
                         policies[k],
                         one.recall(),
                         one.stray,
                         one.points,
-                        extractor.stats()
+                        one.error_quantile(0.5),
+                        one.errors_px.len()
                     );
                 }
                 scores[k].add(&sim, index, &lit, min_contrast, &curves);
