@@ -380,20 +380,34 @@ fn realistic_frames_without_background() {
 /// laser's hue along their edges, offset from the edge by its blur: sampled two pixels
 /// to either side, the step across such a band caught about half of the edge's
 /// contrast, less than the band's strength, and 30 % of the frame's points were such
-/// bands. Sampled four pixels out, the step is the edge's whole contrast.
+/// bands. Sampled four pixels out, the step is the edge's whole contrast. And realistic
+/// room 1's frame 5: a fringe beside a narrow feature, whose far side four pixels out
+/// is the same surface again, is caught only at two: the check takes the larger step.
 #[test]
-fn bands_along_the_edges_of_a_laser_hued_board_are_not_stripes() {
-    let mut scan = Realistic::in_air(18).expect("table 18 is in air");
-    let mut score = Score::default();
-    scan.extract_into(18, &mut score);
-    eprintln!(
-        "table 18, frame 18: recall {:.3}, stray {} of {}",
-        score.recall(),
-        score.stray,
-        score.points
-    );
-    // Recall 0.709 either way; strays 412 of 1,392 points sampled at 2 px, 190 of
-    // 1,170 at 4 px (the rest are other mechanisms: docs/accuracy.md).
-    assert!(score.recall() >= 0.7, "recall {}", score.recall());
-    assert!(score.stray_share() <= 0.2, "stray {}", score.stray_share());
+fn fringes_and_bands_along_edges_are_not_stripes() {
+    // (seed, frame, largest stray share): table 18 had 412 of 1,392 points stray with
+    // the step at 2 px alone and has 190 of 1,170 now (the rest are other mechanisms:
+    // docs/extraction.md); room 1 had 32 of 1,803 with the step at 4 px alone and has
+    // 2 of 1,773 now. Recall 0.709 and 0.981 either way.
+    for (seed, frame, most, recall) in [(18, 18, 0.2, 0.7), (1, 5, 0.01, 0.97)] {
+        let mut scan = Realistic::in_air(seed).expect("in air");
+        let mut score = Score::default();
+        scan.extract_into(frame, &mut score);
+        eprintln!(
+            "scan {seed}, frame {frame}: recall {:.3}, stray {} of {}",
+            score.recall(),
+            score.stray,
+            score.points
+        );
+        assert!(
+            score.recall() >= recall,
+            "scan {seed}: recall {}",
+            score.recall()
+        );
+        assert!(
+            score.stray_share() <= most,
+            "scan {seed}: stray {}",
+            score.stray_share()
+        );
+    }
 }
