@@ -4,8 +4,8 @@
 //! the estimator's own information.
 //!
 //! Owns the minimisation and the covariance; the residual formulas are in
-//! [`super::terms`], the scatter rule's information in [`super::scatter`], the parametrisation in [`super::pose`], the start in
-//! [`super::init`].
+//! [`super::terms`], the scatter rule's information in [`super::scatter`], the
+//! parametrisation in [`super::pose`], the start in [`super::init`].
 //!
 //! # Cost
 //! ```text
@@ -203,7 +203,7 @@ pub struct Start {
 
 /// Three consecutive poses and their frame steps.
 #[derive(Clone, Copy, Debug)]
-pub(super) struct Triple {
+struct Triple {
     poses: [u32; 3],
     h: [f64; 2],
 }
@@ -211,8 +211,8 @@ pub(super) struct Triple {
 /// The fixed structure of a problem: which terms exist and where their unknowns are.
 pub(super) struct Layout<'a> {
     pub(super) evidence: &'a Evidence,
-    pub(super) params: &'a EstimateParams,
-    pub(super) triples: Vec<Triple>,
+    params: &'a EstimateParams,
+    triples: Vec<Triple>,
     /// Number of unknowns: six per pose, one more with the focal scale.
     pub(super) n: usize,
 }
@@ -259,6 +259,16 @@ impl<'a> Layout<'a> {
             params,
             triples,
             n,
+        }
+    }
+
+    /// This layout without the motion terms: the crossings' information alone.
+    pub(super) fn crossings_only(&self) -> Layout<'a> {
+        Layout {
+            evidence: self.evidence,
+            params: self.params,
+            triples: Vec::new(),
+            n: self.n,
         }
     }
 
@@ -547,7 +557,7 @@ impl Layout<'_> {
 /// Adds the gauge row `gauge` (weight: the mean diagonal) and the ridge to `h`'s lower
 /// triangle, the only one the factorisations read (`Side::Lower`): the upper triangle
 /// stays as it was, so `h` is not symmetric afterwards.
-pub(super) fn regularise(h: &mut Mat<f64>, gauge: &[f64]) {
+fn regularise(h: &mut Mat<f64>, gauge: &[f64]) {
     let n = h.nrows();
     let mean_diag = (0..n).map(|i| h[(i, i)]).sum::<f64>() / n.max(1) as f64;
     let norm = gauge.iter().map(|x| x * x).sum::<f64>().sqrt();
@@ -634,10 +644,20 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
 /// The full covariance at `state`: the inverse of the information matrix with the gauge
 /// and ridge. `None` if it does not factor.
 fn covariance(layout: &Layout, state: &State, spreads: &Spreads) -> Option<Mat<f64>> {
+    Some(information_factor(layout, state, spreads)?.inverse())
+}
+
+/// The Cholesky factor of the information matrix at `state`, with the gauge and ridge;
+/// `None` if it does not factor.
+pub(super) fn information_factor(
+    layout: &Layout,
+    state: &State,
+    spreads: &Spreads,
+) -> Option<Cholesky> {
     let (mut h, _, _) = layout.normal_equations(state, spreads);
     let (_, gauge) = layout.gauge(state, &layout.rays(state.focal_scale));
     regularise(&mut h, &gauge);
-    Some(Cholesky::of_lower(&h, 0.0, layout.params.threads)?.inverse())
+    Cholesky::of_lower(&h, 0.0, layout.params.threads)
 }
 
 /// The covariance the crossings alone give at `state`: [`covariance`] without the
@@ -652,13 +672,7 @@ fn covariance(layout: &Layout, state: &State, spreads: &Spreads) -> Option<Mat<f
 /// counted, 1.3 without (the planes it then leaves out are the ones the crossings do
 /// not fix). On a sweep whose crossings fix every pose the two agree.
 fn evidence_covariance(layout: &Layout, state: &State, spreads: &Spreads) -> Option<Mat<f64>> {
-    let bare = Layout {
-        evidence: layout.evidence,
-        params: layout.params,
-        triples: Vec::new(),
-        n: layout.n,
-    };
-    covariance(&bare, state, spreads)
+    covariance(&layout.crossings_only(), state, spreads)
 }
 
 /// `j Σ jᵀ` over the unknowns `idx`.

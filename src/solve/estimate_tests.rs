@@ -369,13 +369,8 @@ fn a_plane_with_collinear_crossings_gets_a_large_uncertainty() {
 
 /// The relative depth deviation, as `params`' estimate of a single wall (every
 /// crossing on one 3D plane) reports it, of a point of frame 30's laser 0 off the wall:
-/// between the projector and the wall.
-fn single_wall_sigma_off_the_wall(params: &EstimateParams) -> f64 {
-    single_wall_sigma(params, false)
-}
-
-/// [`single_wall_sigma_off_the_wall`], with the scatter bounded in the whole space
-/// first when `bound`.
+/// between the projector and the wall. With `bound`, the estimate's scatter part is
+/// bounded in the whole space first.
 fn single_wall_sigma(params: &EstimateParams, bound: bool) -> f64 {
     let scene = Scene {
         facets: vec![V3::new(0.05, -0.03, 0.35)],
@@ -411,10 +406,13 @@ fn single_wall_sigma(params: &EstimateParams, bound: bool) -> f64 {
 /// information says so, and off the wall nothing is known.
 #[test]
 fn a_single_wall_leaves_the_planes_undetermined() {
-    let sigma = single_wall_sigma_off_the_wall(&EstimateParams {
-        motion: false,
-        ..EstimateParams::default()
-    });
+    let sigma = single_wall_sigma(
+        &EstimateParams {
+            motion: false,
+            ..EstimateParams::default()
+        },
+        false,
+    );
     assert!(sigma > 0.2, "{sigma}");
 }
 
@@ -426,7 +424,7 @@ fn a_single_wall_leaves_the_planes_undetermined() {
 /// tell where the model is wrong.
 #[test]
 fn the_hand_model_does_not_make_a_single_wall_determined() {
-    let sigma = single_wall_sigma_off_the_wall(&EstimateParams::default());
+    let sigma = single_wall_sigma(&EstimateParams::default(), false);
     assert!(sigma > 0.2, "{sigma}");
 }
 
@@ -872,7 +870,6 @@ fn shallow_fold(fold: f64) -> Vec<(f64, f64, f64)> {
     let est = estimate(&ev, &start, &params).expect("estimate");
     let bounded = super::scatter::with_bounded_scatter(&ev, est.clone(), &params);
     let mut out = Vec::new();
-    let mut ratios = Vec::new();
     for c in &ev.crossings {
         let p = &ev.planes[c.a as usize];
         let (pose, laser) = (p.pose as usize, usize::from(p.laser));
@@ -882,13 +879,13 @@ fn shallow_fold(fold: f64) -> Vec<(f64, f64, f64)> {
             continue;
         };
         let got = v.dot(&r);
-        ratios.push(got / truth);
         out.push((
             est.depth_sigma(pose, laser, &ray(c.u)),
             bounded.depth_sigma(pose, laser, &ray(c.u)),
             got / truth,
         ));
     }
+    let mut ratios: Vec<f64> = out.iter().map(|p| p.2).collect();
     ratios.sort_by(f64::total_cmp);
     let scale = ratios[ratios.len() / 2];
     out.iter()

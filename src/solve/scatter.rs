@@ -26,7 +26,7 @@ use faer::{Mat, Side};
 
 use super::dense::Cholesky;
 use super::estimate::{
-    accumulate, regularise, Estimate, EstimateParams, Layout, PoseMarginal, Spreads, State,
+    accumulate, information_factor, Estimate, EstimateParams, Layout, PoseMarginal, Spreads, State,
 };
 use super::evidence::Evidence;
 use super::pose::POSE_DOF;
@@ -51,7 +51,6 @@ pub(super) fn scatter_information(
     cov: &Mat<f64>,
 ) -> (Vec<PoseMarginal>, Vec<usize>) {
     let (c, counts) = scatter_matrix(layout, state, spreads);
-    let n = layout.n;
     let t = &c * cov;
     let blocks = pose_unknowns(layout)
         .iter()
@@ -60,7 +59,7 @@ pub(super) fn scatter_information(
                 // [Σ C Σ]_{ia ib} = Σ_r Σ_{r ia} (C Σ)_{r ib}.
                 (Some(ia), Some(ib)) => {
                     let (col_s, col_t) = (cov.col_as_slice(ia), t.col_as_slice(ib));
-                    col_s.iter().zip(col_t).take(n).map(|(x, y)| x * y).sum()
+                    col_s.iter().zip(col_t).map(|(x, y)| x * y).sum()
                 }
                 _ => 0.0,
             })
@@ -86,21 +85,12 @@ pub fn with_bounded_scatter(
     mut est: Estimate,
     params: &EstimateParams,
 ) -> Estimate {
-    let full = Layout::new(evidence, params);
-    let layout = Layout {
-        evidence,
-        params,
-        triples: Vec::new(),
-        n: full.n,
-    };
+    let layout = Layout::new(evidence, params).crossings_only();
     let state = State {
         poses: est.poses.clone(),
         focal_scale: est.focal_scale,
     };
-    let (mut h, _, _) = layout.normal_equations(&state, &est.spreads);
-    let (_, gauge) = layout.gauge(&state, &layout.rays(state.focal_scale));
-    regularise(&mut h, &gauge);
-    let Some(chol) = Cholesky::of_lower(&h, 0.0, params.threads) else {
+    let Some(chol) = information_factor(&layout, &state, &est.spreads) else {
         return est;
     };
     let (c, _) = scatter_matrix(&layout, &state, &est.spreads);
