@@ -59,6 +59,7 @@ pub const BOUNDS: &[(&str, f64, f64)] = &[
     ("serve.checkpoint_interval_s", 0.05, 86_400.0),
     ("serve.min_planes_first_solve", 1.0, 1e6),
     ("serve.solve_growth", 1.0, 100.0),
+    ("serve.epoch_duty", 0.01, 1.0),
     ("serve.status_interval_ms", 10.0, 3_600_000.0),
     ("serve.client_queue_mib", 0.0, 4096.0),
     ("serve.stream_clients_max", 1.0, 4096.0),

@@ -14,7 +14,9 @@
 //!   of the scan taken when it starts. The first
 //!   is tried once `min_planes_first_solve` planes have arrived, the next whenever the
 //!   planes have grown by `solve_growth`; a failed one is retried at the same growth,
-//!   or at 1.5 while no epoch has been adopted.
+//!   or at 1.5 while no epoch has been adopted. After each attempt the thread rests, so
+//!   that epochs are in the making at most `epoch_duty` of the time ([`rest_after`]):
+//!   late in a long scan one takes a minute or more of a core.
 //! - Between epochs, each new frame is placed against the current epoch as it arrives:
 //!   its pose fitted from its crossings with the epoch's joint poses exactly as the
 //!   offline estimate fits every frame outside its anchors, with the joint poses'
@@ -34,6 +36,7 @@
 //!   gives the better cloud, which then depends on its epochs.
 
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, TryRecvError};
 use image::RgbImage;
@@ -57,6 +60,10 @@ pub struct IncrementalParams {
     /// A new global solve starts when the planes have grown by this factor since the
     /// last one (and a failed first solve is retried at the same growth).
     pub solve_growth: f64,
+    /// The largest share of the time an epoch may be in the making: after one that took
+    /// `t`, the next starts no sooner than `t (1 / epoch_duty − 1)` after it
+    /// ([`rest_after`]).
+    pub epoch_duty: f64,
 }
 
 /// What the live solver wants sent.
@@ -99,6 +106,15 @@ const FIRST_EPOCH_GROWTH: f64 = 1.5;
 /// a backlog of 10 s is placed in about 3 s, and no frame waits long for it.
 const BACKLOG_PER_FRAME: usize = 3;
 
+/// The rest after an epoch that took `took`, so that epochs are in the making at most
+/// `duty` of the time: `took (1 / duty − 1)`, none at a duty of 1 or more.
+pub(super) fn rest_after(took: Duration, duty: f64) -> Duration {
+    if duty.is_nan() || duty <= 0.0 || duty >= 1.0 {
+        return Duration::ZERO;
+    }
+    took.mul_f64(1.0 / duty - 1.0)
+}
+
 /// An epoch being made. Dropped (adopted, or superseded by the final solve), it stops
 /// the epoch if still running: on a small machine the final solve must not share the CPU
 /// with an epoch nobody will read.
@@ -108,6 +124,8 @@ struct Pending {
     planes: usize,
     /// Capture time of the snapshot's newest frame: its points are no newer.
     captured_nanos: u64,
+    /// When it was started.
+    started: Instant,
     cancel: solve::Cancel,
 }
 
@@ -162,6 +180,8 @@ pub struct Incremental {
     captured: Vec<u64>,
     pending: Option<Pending>,
     next_solve_at: usize,
+    /// No epoch starts before this (the duty rule, [`rest_after`]).
+    rest_until: Option<Instant>,
     /// The last epoch's focal estimate was too uncertain (warned once when it turns so).
     focal_uncertain: bool,
     pub counts: SolverCounts,
@@ -187,6 +207,7 @@ impl Incremental {
             backlog: 0..0,
             captured: Vec::new(),
             pending: None,
+            rest_until: None,
             focal_uncertain: false,
             counts: SolverCounts::default(),
         }
@@ -274,6 +295,9 @@ impl Incremental {
         if self.pending.is_some() || n < self.next_solve_at {
             return;
         }
+        if self.rest_until.is_some_and(|t| Instant::now() < t) {
+            return;
+        }
         let job = epoch::Job {
             record: self.scan.snapshot(),
             camera: self.camera.clone(),
@@ -289,6 +313,7 @@ impl Incremental {
                     answer,
                     planes: n,
                     captured_nanos,
+                    started: Instant::now(),
                     cancel,
                 })
             }
@@ -313,10 +338,13 @@ impl Incremental {
                 "solver thread died",
             ))),
         };
-        let (planes, captured) = self
-            .pending
-            .take()
-            .map_or((0, 0), |p| (p.planes, p.captured_nanos));
+        let (planes, captured, started) = self.pending.take().map_or((0, 0, None), |p| {
+            (p.planes, p.captured_nanos, Some(p.started))
+        });
+        if let Some(started) = started {
+            let now = Instant::now();
+            self.rest_until = Some(now + rest_after(now - started, self.params.epoch_duty));
+        }
         self.counts.global_solves += 1;
         let answer = match result {
             Ok(a) => a,
@@ -413,6 +441,24 @@ impl Incremental {
     #[cfg(test)]
     fn solving(&self) -> bool {
         self.pending.as_ref().is_some_and(|p| p.answer.is_empty())
+    }
+}
+
+#[cfg(test)]
+mod rest_tests {
+    use super::*;
+
+    #[test]
+    fn the_rest_keeps_epochs_to_their_duty() {
+        let took = Duration::from_secs(4);
+        assert_eq!(rest_after(took, 0.5), took);
+        assert_eq!(rest_after(took, 0.25), Duration::from_secs(12));
+        assert_eq!(rest_after(took, 1.0), Duration::ZERO);
+        assert_eq!(rest_after(took, f64::NAN), Duration::ZERO);
+        // At duty d, busy / (busy + rest) = d.
+        let d = 0.3;
+        let share = took.as_secs_f64() / (took + rest_after(took, d)).as_secs_f64();
+        assert!((share - d).abs() < 1e-9, "{share}");
     }
 }
 

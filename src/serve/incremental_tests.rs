@@ -22,6 +22,7 @@ fn an_epoch_with_an_estimated_focal_length_lies_on_the_surface() {
         IncrementalParams {
             min_planes_first_solve: scan.planes.len(),
             solve_growth: 10.0,
+            epoch_duty: 1.0,
         },
         ScaleMode::Factor { factor: 1.0 },
     );
@@ -248,6 +249,7 @@ fn assert_epochs_monotone(noise_px: f64) {
         IncrementalParams {
             min_planes_first_solve: 30,
             solve_growth: 1.25,
+            epoch_duty: 1.0,
         },
         ScaleMode::Factor { factor: 1.0 },
     );
@@ -353,6 +355,7 @@ fn live_epochs_lie_on_the_surface_and_the_final_cloud_is_reconstructs() {
         IncrementalParams {
             min_planes_first_solve: 40,
             solve_growth: 1.5,
+            epoch_duty: 1.0,
         },
         ScaleMode::Factor { factor: 1.0 },
     );
@@ -410,6 +413,7 @@ fn the_final_solve_stops_an_epoch_still_running() {
         IncrementalParams {
             min_planes_first_solve: planes,
             solve_growth: 10.0,
+            epoch_duty: 1.0,
         },
         ScaleMode::Factor { factor: 1.0 },
     );
@@ -429,4 +433,61 @@ fn the_final_solve_stops_an_epoch_still_running() {
         "the epoch's solve was not told to stop"
     );
     assert!(rec.cloud.len() > 10_000, "{} points", rec.cloud.len());
+}
+
+/// After an epoch, the next waits out the duty rule's rest even when the planes have
+/// grown past the growth that triggers it; at a duty of 1 it starts at once.
+#[test]
+fn epochs_rest_so_their_thread_keeps_to_its_duty() {
+    let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+    let config = Config::default();
+    let (_, frames) = path_frames(&camera, &config);
+    let half = frames.len() / 2;
+    let run = |duty: f64| {
+        let mut solver = Incremental::new(
+            camera.clone(),
+            config.clone(),
+            IncrementalParams {
+                min_planes_first_solve: 40,
+                solve_growth: 1.05,
+                epoch_duty: duty,
+            },
+            ScaleMode::Factor { factor: 1.0 },
+        );
+        let mut frames = frames.clone().into_iter();
+        while solver.pending.is_none() {
+            solver.add_frame(frames.next().expect("an epoch started"), 0);
+        }
+        // Its answer, however long a loaded machine takes (no speed test).
+        let deadline = Instant::now() + Duration::from_secs(300);
+        while solver.pending.is_some() && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(10));
+            solver.add_frame(Vec::new(), 0);
+        }
+        assert!(solver.pending.is_none(), "the first epoch never answered");
+        let started = Instant::now();
+        for curves in frames.by_ref().take(half) {
+            solver.add_frame(curves, 0);
+        }
+        assert!(solver.scan.planes().len() >= solver.next_solve_at);
+        (solver, started)
+    };
+    let (resting, started) = run(0.001);
+    let rest_until = resting.rest_until.expect("a rest after the first epoch");
+    assert!(
+        Instant::now() < rest_until,
+        "the rest ({:?} from the frames fed) has passed already",
+        rest_until - started
+    );
+    assert!(
+        resting.pending.is_none(),
+        "an epoch started during the rest"
+    );
+    assert_eq!(resting.counts.global_solves, 1);
+    let (eager, _) = run(1.0);
+    assert!(eager.rest_until.is_some_and(|t| t <= Instant::now()));
+    assert!(
+        eager.pending.is_some() || eager.counts.global_solves >= 2,
+        "no epoch started without a rest"
+    );
 }

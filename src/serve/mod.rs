@@ -84,6 +84,7 @@ pub struct ServeConfig {
     pub checkpoint_interval_s: f64,
     pub min_planes_first_solve: usize,
     pub solve_growth: f64,
+    pub epoch_duty: f64,
     pub status_socket: String,
     pub status_interval_ms: u64,
     pub stream_tcp: String,
@@ -114,6 +115,7 @@ impl Default for ServeConfig {
             checkpoint_interval_s: 2.0,
             min_planes_first_solve: 40,
             solve_growth: 3.0,
+            epoch_duty: 0.5,
             status_socket: "/run/crossline/status.sock".into(),
             status_interval_ms: 1000,
             stream_tcp: "127.0.0.1:7878".into(),
@@ -570,6 +572,7 @@ fn restore(
     let params = IncrementalParams {
         min_planes_first_solve: opts.config.serve.min_planes_first_solve,
         solve_growth: opts.config.serve.solve_growth,
+        epoch_duty: opts.config.serve.epoch_duty,
     };
     let camera = opts.camera.clone();
     let mut solver = Incremental::new(camera, opts.config.clone(), params, opts.scale.clone());
