@@ -31,6 +31,7 @@
 //! | `cx`, `cy` | float | image centre | principal point, px (pixel centres are integers) |
 //! | `distortion` | `[float]` | `[]` | OpenCV `k1, k2, p1, p2[, k3[, k4, k5, k6]]` |
 //! | `psf_sigma_px` | float | 0.8 | optics blur of the stripe, px |
+//! | `readout_frames` | float | 0 | rolling shutter: first row to last row, in frame periods (0: global shutter); row `y` of frame `i` sees the projector at time `i + readout_frames · y / (height − 1)`, and `truth.json` gives the planes of the middle row |
 //! | **`[projector]`** | | | |
 //! | `baseline` | float | 0.2 × distance | rest distance of the laser centre from the camera centre |
 //! | `baseline_direction` | `[x,y,z]` | `[1,0,0]` | direction of that offset in *camera* axes (+X right, +Y down) |

@@ -139,7 +139,11 @@ impl Motion {
     /// Where the rest centre has wandered to in frame `index`: the configured rest
     /// position plus the drift and the walk (the wobble is about this point).
     pub fn rest_centre_at(&self, index: usize) -> V3 {
-        let t = index as f64;
+        self.rest_centre_at_time(index as f64)
+    }
+
+    /// [`Self::rest_centre_at`] at time `t`, in frames (continuous).
+    fn rest_centre_at_time(&self, t: f64) -> V3 {
         let mut c = self.rest_centre;
         if self.drift > 0.0 {
             c += self.drift_offset(t);
@@ -223,7 +227,12 @@ impl Motion {
 
     /// The projector pose of frame `index`.
     pub fn pose(&self, index: usize, scene: &Scene, camera: &Camera) -> ProjectorPose {
-        let t = index as f64;
+        self.pose_at(index as f64, scene, camera)
+    }
+
+    /// The projector pose at time `t`, in frames: the path is smooth in time, so a
+    /// rolling shutter's rows see it between frames.
+    pub fn pose_at(&self, t: f64, scene: &Scene, camera: &Camera) -> ProjectorPose {
         let tau = std::f64::consts::TAU;
         // Each axis stays within wobble/√3, so the offset stays within the wobble radius.
         let mut offset = V3::zeros();
@@ -234,7 +243,7 @@ impl Motion {
                 .sum();
             offset[a] = s * self.wobble / 3f64.sqrt();
         }
-        let centre = self.rest_centre_at(index) + offset;
+        let centre = self.rest_centre_at_time(t) + offset;
 
         // A Lissajous sweep of the aim over the image, a little beyond its border, plus
         // a faster tremor of a few percent.

@@ -19,6 +19,8 @@
 //! of 4096 sheet rays; nothing can hide the glow from the camera, as it lies in front
 //! of the pixel's first surface).
 
+use std::sync::Arc;
+
 use image::RgbImage;
 use nalgebra::{Matrix2, Matrix3x2, Vector3};
 use rayon::prelude::*;
@@ -97,9 +99,18 @@ struct LaserFrame {
     /// and the camera's channels keep their fixed ratio (`colour`) to it.
     main: usize,
     /// Under water: how far the sheet's light travels before it meets a surface, in
-    /// `REACH_BINS` bins of `tan(angle in the fan)`; the water behind is dark.
-    reach: Vec<f64>,
+    /// `REACH_BINS` bins of `tan(angle in the fan)`; the water behind is dark. (With
+    /// a rolling shutter, shared by `REACH_ROWS` rows: it only shapes the glow.)
+    reach: Arc<Vec<f64>>,
 }
+
+/// Row `y`'s lasers of [`Simulator::row_lasers`] (one pair: every row's).
+fn row_of(lasers: Option<&[[LaserFrame; 2]]>, y: usize) -> Option<&[LaserFrame; 2]> {
+    lasers.and_then(|l| l.get(y.min(l.len().saturating_sub(1))))
+}
+
+/// With a rolling shutter under water, rows that share one sheet reach.
+const REACH_ROWS: usize = 64;
 
 const REACH_BINS: usize = 4096;
 
@@ -255,9 +266,68 @@ impl Simulator {
         self.beam2.sqrt()
     }
 
-    /// The projector pose of frame `index`.
+    /// The projector pose of frame `index`: with a rolling shutter, when its middle
+    /// row is exposed (the planes `truth.json` gives).
     pub fn pose(&self, index: usize) -> ProjectorPose {
-        self.motion.pose(index, &self.scene, &self.camera)
+        let middle = 0.5 * self.spec.camera.readout_frames.max(0.0);
+        self.motion
+            .pose_at(index as f64 + middle, &self.scene, &self.camera)
+    }
+
+    /// The projector pose that row `y` of frame `index` sees: under a rolling shutter,
+    /// at time `index + readout_frames · y / (height − 1)`; otherwise frame `index`'s.
+    pub fn row_pose(&self, index: usize, y: u32) -> ProjectorPose {
+        let readout = self.spec.camera.readout_frames.max(0.0);
+        let h = self.camera.height.max(2) - 1;
+        let t = index as f64 + readout * f64::from(y.min(h)) / f64::from(h);
+        self.motion.pose_at(t, &self.scene, &self.camera)
+    }
+
+    /// The lasers row by row as frame `index` exposes them: one pair for every row
+    /// under a global shutter; under a rolling shutter, row `y`'s at time
+    /// `index + readout_frames · y / (height − 1)`.
+    fn row_lasers(&self, index: usize) -> Vec<[LaserFrame; 2]> {
+        let readout = self.spec.camera.readout_frames.max(0.0);
+        let h = self.camera.height as usize;
+        let at = |t: f64| self.motion.pose_at(t, &self.scene, &self.camera);
+        if readout == 0.0 || h < 2 {
+            let pose = at(index as f64);
+            let reach = [0, 1].map(|k| self.reach_of(&pose, k));
+            return vec![self.laser_pair(&pose, &reach)];
+        }
+        let time = |y: usize| index as f64 + readout * y as f64 / (h - 1) as f64;
+        let blocks: Vec<[Arc<Vec<f64>>; 2]> = (0..h.div_ceil(REACH_ROWS))
+            .map(|b| {
+                let middle = (b * REACH_ROWS + REACH_ROWS / 2).min(h - 1);
+                let pose = at(time(middle));
+                [0, 1].map(|k| self.reach_of(&pose, k))
+            })
+            .collect();
+        (0..h)
+            .into_par_iter()
+            .map(|y| self.laser_pair(&at(time(y)), &blocks[y / REACH_ROWS]))
+            .collect()
+    }
+
+    /// Under water, how far laser `k`'s sheet reaches ([`Self::sheet_reach`]).
+    fn reach_of(&self, pose: &ProjectorPose, k: usize) -> Arc<Vec<f64>> {
+        Arc::new(match self.water {
+            Some(_) => self.sheet_reach(pose, k),
+            None => Vec::new(),
+        })
+    }
+
+    fn laser_pair(&self, pose: &ProjectorPose, reach: &[Arc<Vec<f64>>; 2]) -> [LaserFrame; 2] {
+        [0, 1].map(|k| LaserFrame {
+            n: pose.normal(k),
+            h: pose.normal(k).dot(&pose.centre),
+            centre: pose.centre,
+            axis: pose.axis,
+            fan_dir: pose.fan_dirs[k],
+            colour: self.laser_colour(k),
+            main: main_channel(self.colours[k]),
+            reach: reach[k].clone(),
+        })
     }
 
     /// The ground truth of frame `index` (no rendering).
@@ -343,21 +413,9 @@ impl Simulator {
         img: &mut RgbImage,
         lit: Option<&mut [u8]>,
     ) -> FrameTruth {
-        let pose = self.pose(index);
-        let lasers = [0, 1].map(|k| LaserFrame {
-            n: pose.normal(k),
-            h: pose.normal(k).dot(&pose.centre),
-            centre: pose.centre,
-            axis: pose.axis,
-            fan_dir: pose.fan_dirs[k],
-            colour: self.laser_colour(k),
-            main: main_channel(self.colours[k]),
-            reach: match self.water {
-                Some(_) => self.sheet_reach(&pose, k),
-                None => Vec::new(),
-            },
-        });
+        let lasers = self.row_lasers(index);
         self.render(img, Some(&lasers), index as u64, lit);
+        let pose = self.pose(index);
         FrameTruth {
             index,
             projector_centre: pose.centre.into(),
@@ -408,7 +466,7 @@ impl Simulator {
     fn render(
         &self,
         img: &mut RgbImage,
-        lasers: Option<&[LaserFrame; 2]>,
+        lasers: Option<&[[LaserFrame; 2]]>,
         key: u64,
         lit: Option<&mut [u8]>,
     ) {
@@ -424,12 +482,12 @@ impl Simulator {
                 .zip(lit.par_chunks_mut(w))
                 .enumerate()
                 .for_each(|(y, (row, lit_row))| {
-                    self.render_row(y, row, Some(lit_row), lasers, frame_key)
+                    self.render_row(y, row, Some(lit_row), row_of(lasers, y), frame_key)
                 }),
             None => buf
                 .par_chunks_mut(3 * w)
                 .enumerate()
-                .for_each(|(y, row)| self.render_row(y, row, None, lasers, frame_key)),
+                .for_each(|(y, row)| self.render_row(y, row, None, row_of(lasers, y), frame_key)),
         }
         debug_assert_eq!(buf.len(), 3 * w * h);
         let r = &self.params.realism;

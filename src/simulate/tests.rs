@@ -808,3 +808,61 @@ normal = [0, -1, 0]
         "{dark} of {vault_pixels} vault pixels dark"
     );
 }
+
+/// Under a rolling shutter each row sees the projector when it is exposed: every lit
+/// pixel lies on its own row's planes, and on a fast sweep many rows far from the
+/// middle miss the middle row's planes (those of `truth.json`) by more than a pixel.
+#[test]
+fn a_rolling_shutter_exposes_each_row_at_its_own_time() {
+    let mut spec = stripe_scene("").with_resolution(160, 120);
+    spec.camera.readout_frames = 1.0;
+    let sim = Simulator::new(&spec, &quiet()).expect("sim");
+    let cam = sim.camera().clone();
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let mut lit = vec![0u8; w * h];
+    let mut img = RgbImage::new(1, 1);
+    let index = 4;
+    let truth = sim.render_frame_into(index, &mut img, Some(&mut lit));
+    let middle = sim.pose(index);
+    assert_eq!(V3::from(truth.planes[0]), middle.plane(0));
+    let near_curve = |planes: [V3; 2], x: usize, y: usize| {
+        (0..2).any(|k| {
+            let s = |dx: f64, dy: f64| {
+                signed(sim.scene(), &cam, &planes[k], x as f64 + dx, y as f64 + dy).map(|s| s.0)
+            };
+            let c = s(0.0, 0.0).unwrap_or(f64::NAN);
+            [(0.75, 0.0), (-0.75, 0.0), (0.0, 0.75), (0.0, -0.75)]
+                .iter()
+                .any(|&(dx, dy)| s(dx, dy).is_some_and(|o| o.signum() != c.signum()))
+        })
+    };
+    let (mut n, mut off_middle) = (0, 0);
+    for y in 1..h - 1 {
+        let row = sim.row_pose(index, y as u32);
+        for x in 1..w - 1 {
+            if lit[y * w + x] == 0 {
+                continue;
+            }
+            n += 1;
+            assert!(
+                near_curve([row.plane(0), row.plane(1)], x, y),
+                "lit pixel ({x}, {y}) is far from its row's curves"
+            );
+            let edge_row = y < h / 4 || y >= 3 * h / 4;
+            off_middle +=
+                usize::from(edge_row && !near_curve([middle.plane(0), middle.plane(1)], x, y));
+        }
+    }
+    assert!(n > 50, "{n} lit pixels");
+    assert!(
+        off_middle * 10 > n,
+        "{off_middle} of {n} lit pixels off the middle row's curves"
+    );
+    // A global shutter: every row sees the frame's pose.
+    spec.camera.readout_frames = 0.0;
+    let global = Simulator::new(&spec, &quiet()).expect("sim");
+    assert_eq!(
+        global.row_pose(index, 0),
+        global.row_pose(index, h as u32 - 1)
+    );
+}

@@ -97,6 +97,11 @@ pub struct Args {
     /// Laser colours, laser 0 first: red-green or blue-green (overrides the scene).
     #[arg(long, value_name = "PAIR")]
     colours: Option<String>,
+    /// Rolling shutter: the time from the first row's exposure to the last one's, in
+    /// frame periods (overrides the scene; 0 is a global shutter, a webcam at 30 fps
+    /// reads out in 0.5-0.9). crossline's estimator assumes a global shutter.
+    #[arg(long, value_name = "F")]
+    readout_frames: Option<f64>,
     /// Worker threads (default: all cores).
     #[arg(long, value_name = "N")]
     threads: Option<usize>,
@@ -168,6 +173,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             "blue-green" => [LaserColour::Blue, LaserColour::Green],
             other => bail!("--colours {other}: expected red-green or blue-green"),
         };
+    }
+    if let Some(f) = args.readout_frames {
+        if !(0.0..=1.0).contains(&f) {
+            bail!("--readout-frames {f}: expected a share of the frame period, 0 to 1");
+        }
+        spec.camera.readout_frames = f;
     }
     if let Some(t) = args.turbidity {
         if !(t >= 0.0 && t.is_finite()) {

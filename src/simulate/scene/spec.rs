@@ -73,6 +73,14 @@ pub struct CameraSpec {
     pub distortion: Vec<f64>,
     #[serde(default = "default_psf")]
     pub psf_sigma_px: f64,
+    /// Rolling shutter: the time from the first row's exposure to the last one's, in
+    /// frame periods (0: a global shutter; a webcam at 30 fps reads out in 0.5-0.9).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub readout_frames: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 fn default_up() -> [f64; 3] {
@@ -500,6 +508,12 @@ impl SceneSpec {
             return Err(bad(format!(
                 "[camera] image {}x{} is too large to render (at most {MAX_SIDE} a side, {MAX_PIXELS} pixels)",
                 c.width, c.height
+            )));
+        }
+        if !(0.0..=1.0).contains(&c.readout_frames) {
+            return Err(bad(format!(
+                "[camera] `readout_frames` = {}, expected 0 (global shutter) to 1 frame period",
+                c.readout_frames
             )));
         }
         if let Some(fx) = c.fx {
