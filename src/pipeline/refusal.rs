@@ -67,7 +67,10 @@ const PRECISION_FLOOR_PX: f64 = 1e-3;
 pub(crate) fn refusal(stats: &cloud::TriangulateStats, fit: Option<Fit>) -> Option<String> {
     const ADVICE: &str = "The report has the estimate. Give the focal length if it is \
         known (without --estimate-focal), sweep the cross over more relief, or lower the \
-        laser power if the stripes saturate";
+        laser power if the stripes saturate. A rolling-shutter camera (most webcams and \
+        action cameras) sees a fast-moving cross on planes that turn while the rows are \
+        read out, which no single plane per frame fits: sweep more slowly, or use a \
+        global-shutter camera";
     if stats.inconsistent_points > stats.kept {
         return Some(format!(
             "the self-calibration failed its check, so no cloud is written: the planes' \
