@@ -48,6 +48,8 @@
 #              simulated with --seed 1
 #   CONFIG     a crossline.toml for reconstruct
 #   EXTRA      extra reconstruct arguments (word-split), for both reconstructions
+#   SIM_EXTRA  extra simulate arguments (word-split), e.g. "--readout-frames 0.5" for
+#              a rolling shutter (the true planes are then the middle row's)
 #   FOCAL_OFF  a factor (e.g. 0.8): the self-calibrated reconstruction gets the camera
 #              with fx, fy (and skew) multiplied by it and --estimate-focal; the true-plane
 #              one keeps the true camera. The distortion coefficients stay as they are
@@ -106,6 +108,7 @@ simulate() {
         args=(--scene "$seed" --seed 1)
     fi
     args+=(--frames "$FRAMES" --out "$sim")
+    [ -n "${SIM_EXTRA:-}" ] && args+=($SIM_EXTRA)
     if [ "$(cat "$sim/.generality-done" 2>/dev/null)" = "${args[*]}" ]; then
         return 0
     fi
