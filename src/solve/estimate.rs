@@ -587,6 +587,26 @@ fn damped_step(h: &Mat<f64>, g: &[f64], mu: f64, threads: DenseThreads) -> Optio
     out.iter().all(|x| x.is_finite()).then_some(out)
 }
 
+/// The decrease of the cost that the Gauss–Newton model predicts for `step`:
+/// `−(2 g·δ + δᵀ H δ)`, the cost being a sum of squares with `g = Jᵀ W e`; `h` is read
+/// from its lower triangle.
+pub(super) fn predicted_decrease(h: &Mat<f64>, g: &[f64], step: &[f64]) -> f64 {
+    let mut quad = 0.0;
+    for (j, &sj) in step.iter().enumerate() {
+        let col = &h.col_as_slice(j)[j..];
+        quad += col[0] * sj * sj;
+        quad += 2.0
+            * sj
+            * col[1..]
+                .iter()
+                .zip(&step[j + 1..])
+                .map(|(c, s)| c * s)
+                .sum::<f64>();
+    }
+    let linear: f64 = g.iter().zip(step).map(|(a, b)| a * b).sum();
+    -(2.0 * linear + quad)
+}
+
 /// Levenberg–Marquardt from `state` at fixed spreads; returns the state, its cost and
 /// the steps taken.
 fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64, usize) {
@@ -604,8 +624,10 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
         let (_, gauge) = layout.gauge(&state, &layout.rays(state.focal_scale));
         regularise(&mut h, &gauge);
         let mut accepted = None;
+        let mut raise = 2.0;
         for _ in 0..10 {
             if let Some(step) = damped_step(&h, &g, mu, layout.params.threads) {
+                let predicted = predicted_decrease(&h, &g, &step);
                 let mut trial = state.moved(&step, focal);
                 layout.renormalise(&mut trial, target);
                 // A focal scale at which some crossing's ray cannot be formed drops that
@@ -614,11 +636,20 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
                 let (c, rays) = layout.cost_and_rays(&trial, spreads);
                 if c.is_finite() && c < current && trial.focal_scale > 0.0 && rays >= rays_now {
                     accepted = Some((trial, c));
-                    mu = (mu / 3.0).max(1e-12);
+                    // Nielsen's rule: the damping follows how well the quadratic model
+                    // predicted the decrease (gain ratio ρ), not a fixed factor.
+                    let rho = (current - c) / predicted;
+                    let shrink = if predicted > 0.0 {
+                        (1.0 - (2.0 * rho - 1.0).powi(3)).max(1.0 / 3.0)
+                    } else {
+                        1.0 / 3.0
+                    };
+                    mu = (mu * shrink).max(1e-12);
                     break;
                 }
             }
-            mu *= 10.0;
+            mu *= raise;
+            raise *= 2.0;
         }
         let Some((trial, c)) = accepted else { break };
         let decrease = current - c;

@@ -929,3 +929,40 @@ fn the_scatter_bound_keeps_what_a_shallow_fold_determines() {
     );
     assert!(over * 100 <= pts.len(), "{over} points off by over 3σ");
 }
+
+/// The decrease Nielsen's damping compares with the actual one is the Gauss–Newton
+/// model's: for a linear residual `e + J δ` it is exact, `|e|² − |e + J δ|²`, with
+/// `H = Jᵀ J` read from its lower triangle only (the factorisations' convention) and
+/// `g = Jᵀ e`.
+#[test]
+fn the_predicted_decrease_is_exact_for_a_linear_residual() {
+    let mut rng = Rng::new(11);
+    let (m, n) = (9, 5);
+    let j: Vec<Vec<f64>> = (0..m)
+        .map(|_| (0..n).map(|_| rng.normal()).collect())
+        .collect();
+    let e: Vec<f64> = (0..m).map(|_| rng.normal()).collect();
+    let step: Vec<f64> = (0..n).map(|_| 0.3 * rng.normal()).collect();
+    // The upper triangle holds garbage: only the lower one may be read.
+    let h = faer::Mat::<f64>::from_fn(n, n, |r, c| {
+        if r >= c {
+            (0..m).map(|k| j[k][r] * j[k][c]).sum()
+        } else {
+            1e6
+        }
+    });
+    let g: Vec<f64> = (0..n)
+        .map(|c| (0..m).map(|k| j[k][c] * e[k]).sum())
+        .collect();
+    let cost = |d: &[f64]| -> f64 {
+        (0..m)
+            .map(|k| (e[k] + (0..n).map(|c| j[k][c] * d[c]).sum::<f64>()).powi(2))
+            .sum()
+    };
+    let actual = cost(&vec![0.0; n]) - cost(&step);
+    let predicted = super::estimate::predicted_decrease(&h, &g, &step);
+    assert!(
+        (predicted - actual).abs() < 1e-9 * actual.abs().max(1.0),
+        "predicted {predicted}, actual {actual}"
+    );
+}
