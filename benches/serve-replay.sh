@@ -9,7 +9,8 @@
 #   cargo build --release && benches/serve-replay.sh [WORKDIR]
 #
 # The dump is simulated once (crossline simulate --scene room --format dump) and kept
-# in WORKDIR (default target/bench-serve). FRAMES=600 for a longer run.
+# in WORKDIR (default target/bench-serve). FRAMES=600 for a longer run; SERVE_ARGS adds
+# serve arguments (word-split), e.g. SERVE_ARGS="--config my.toml".
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${CROSSLINE:-target/release/crossline}
@@ -28,7 +29,8 @@ rm -rf "$RUN"; mkdir -p "$RUN"
 PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
 "$BIN" serve --camera "$SIM/camera.yml" --replay "$SIM/frames.dump" --rate realtime \
     --out-dir "$RUN/out" --out "$RUN/cloud.ply" --report "$RUN/report.json" \
-    --status-socket "$RUN/status.sock" --stream-tcp "127.0.0.1:$PORT" --http "" 2> "$RUN/serve.log" &
+    --status-socket "$RUN/status.sock" --stream-tcp "127.0.0.1:$PORT" --http "" \
+    ${SERVE_ARGS:-} 2> "$RUN/serve.log" &
 SERVE=$!
 for _ in $(seq 200); do [ -S "$RUN/status.sock" ] && break; sleep 0.05; done
 "$BIN" tail --connect "127.0.0.1:$PORT" --out "$RUN/a.ply" 2> "$RUN/a.log" &

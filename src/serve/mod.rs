@@ -115,7 +115,7 @@ impl Default for ServeConfig {
             checkpoint_interval_s: 2.0,
             min_planes_first_solve: 40,
             solve_growth: 3.0,
-            epoch_duty: 0.5,
+            epoch_duty: 0.3,
             status_socket: "/run/crossline/status.sock".into(),
             status_interval_ms: 1000,
             stream_tcp: "127.0.0.1:7878".into(),
