@@ -14,9 +14,10 @@
 //!   of the scan taken when it starts. The first
 //!   is tried once `min_planes_first_solve` planes have arrived, the next whenever the
 //!   planes have grown by `solve_growth`; a failed one is retried at the same growth,
-//!   or at 1.5 while no epoch has been adopted. After each attempt the thread rests, so
-//!   that epochs are in the making at most `epoch_duty` of the time ([`rest_after`]):
-//!   late in a long scan one takes a minute or more of a core.
+//!   or at 1.5 while no epoch has been adopted. Once one has been, the thread rests
+//!   after each attempt, so that epochs are in the making at most `epoch_duty` of the
+//!   time ([`rest_after`]): late in a long scan one takes a minute or more of a core.
+//!   Before the first is adopted the user sees nothing, and the tries go on unrested.
 //! - Between epochs, each new frame is placed against the current epoch as it arrives:
 //!   its pose fitted from its crossings with the epoch's joint poses exactly as the
 //!   offline estimate fits every frame outside its anchors, with the joint poses'
@@ -341,7 +342,10 @@ impl Incremental {
         let (planes, captured, started) = self.pending.take().map_or((0, 0, None), |p| {
             (p.planes, p.captured_nanos, Some(p.started))
         });
-        if let Some(started) = started {
+        // The duty bounds what refreshing an estimate costs. Until one is adopted the
+        // user sees nothing, and the tries are small: they go on without a rest.
+        let adopted = result.is_ok();
+        if let (Some(started), true) = (started, adopted || self.current.is_some()) {
             let now = Instant::now();
             self.rest_until = Some(now + rest_after(now - started, self.params.epoch_duty));
         }

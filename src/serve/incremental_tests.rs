@@ -465,6 +465,7 @@ fn epochs_rest_so_their_thread_keeps_to_its_duty() {
             solver.add_frame(Vec::new(), 0);
         }
         assert!(solver.pending.is_none(), "the first epoch never answered");
+        assert_eq!(solver.epoch(), 1, "the first epoch was not adopted");
         let started = Instant::now();
         for curves in frames.by_ref().take(half) {
             solver.add_frame(curves, 0);
@@ -490,4 +491,40 @@ fn epochs_rest_so_their_thread_keeps_to_its_duty() {
         eager.pending.is_some() || eager.counts.global_solves >= 2,
         "no epoch started without a rest"
     );
+}
+
+/// Until an epoch is adopted the user sees nothing: a failed try is followed by the
+/// next without a rest, whatever the duty (the 200-frame demo once showed no live epoch:
+/// its first try failed and the rest outlasted the replay).
+#[test]
+fn a_failed_first_epoch_is_tried_again_without_a_rest() {
+    let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+    let config = Config::default();
+    let (_, frames) = path_frames(&camera, &config);
+    let mut solver = Incremental::new(
+        camera,
+        config,
+        IncrementalParams {
+            min_planes_first_solve: 2,
+            solve_growth: 1.05,
+            epoch_duty: 0.001,
+        },
+        ScaleMode::Factor { factor: 1.0 },
+    );
+    // One frame's two planes: the solve cannot be made, and says so.
+    solver.add_frame(frames[0].clone(), 0);
+    assert!(solver.pending.is_some(), "no epoch tried");
+    let deadline = Instant::now() + Duration::from_secs(300);
+    while solver.pending.is_some() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(5));
+        solver.add_frame(Vec::new(), 0);
+    }
+    assert_eq!(solver.counts.failed_global_solves, 1);
+    assert_eq!(solver.epoch(), 0);
+    assert!(
+        solver.rest_until.is_none(),
+        "a rest before any epoch was adopted"
+    );
+    solver.add_frame(frames[1].clone(), 0);
+    assert!(solver.pending.is_some(), "the next try waited");
 }
