@@ -61,9 +61,9 @@ pub struct IncrementalParams {
     /// A new global solve starts when the planes have grown by this factor since the
     /// last one (and a failed first solve is retried at the same growth).
     pub solve_growth: f64,
-    /// The largest share of the time an epoch may be in the making: after one that took
-    /// `t`, the next starts no sooner than `t (1 / epoch_duty − 1)` after it
-    /// ([`rest_after`]).
+    /// The largest share of the time an epoch may be in the making: once one has been
+    /// adopted, after an attempt that took `t` the next starts no sooner than
+    /// `t (1 / epoch_duty − 1)` after it ([`rest_after`]).
     pub epoch_duty: f64,
 }
 
@@ -344,8 +344,7 @@ impl Incremental {
         });
         // The duty bounds what refreshing an estimate costs. Until one is adopted the
         // user sees nothing, and the tries are small: they go on without a rest.
-        let adopted = result.is_ok();
-        if let (Some(started), true) = (started, adopted || self.current.is_some()) {
+        if let Some(started) = started.filter(|_| result.is_ok() || self.current.is_some()) {
             let now = Instant::now();
             self.rest_until = Some(now + rest_after(now - started, self.params.epoch_duty));
         }
