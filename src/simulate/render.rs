@@ -287,25 +287,22 @@ impl Simulator {
     /// under a global shutter; under a rolling shutter, row `y`'s at time
     /// `index + readout_frames · y / (height − 1)`.
     fn row_lasers(&self, index: usize) -> Vec<[LaserFrame; 2]> {
-        let readout = self.spec.camera.readout_frames.max(0.0);
-        let h = self.camera.height as usize;
-        let at = |t: f64| self.motion.pose_at(t, &self.scene, &self.camera);
-        if readout == 0.0 || h < 2 {
-            let pose = at(index as f64);
+        let h = self.camera.height;
+        if self.spec.camera.readout_frames <= 0.0 || h < 2 {
+            let pose = self.row_pose(index, 0);
             let reach = [0, 1].map(|k| self.reach_of(&pose, k));
             return vec![self.laser_pair(&pose, &reach)];
         }
-        let time = |y: usize| index as f64 + readout * y as f64 / (h - 1) as f64;
-        let blocks: Vec<[Arc<Vec<f64>>; 2]> = (0..h.div_ceil(REACH_ROWS))
+        let rows = REACH_ROWS as u32;
+        let blocks: Vec<[Arc<Vec<f64>>; 2]> = (0..h.div_ceil(rows))
             .map(|b| {
-                let middle = (b * REACH_ROWS + REACH_ROWS / 2).min(h - 1);
-                let pose = at(time(middle));
+                let pose = self.row_pose(index, (b * rows + rows / 2).min(h - 1));
                 [0, 1].map(|k| self.reach_of(&pose, k))
             })
             .collect();
         (0..h)
             .into_par_iter()
-            .map(|y| self.laser_pair(&at(time(y)), &blocks[y / REACH_ROWS]))
+            .map(|y| self.laser_pair(&self.row_pose(index, y), &blocks[(y / rows) as usize]))
             .collect()
     }
 
