@@ -752,6 +752,16 @@ mod tests {
         let huge = spec.clone().with_resolution(100_000, 100_000);
         let err = huge.validate().expect_err("huge").1;
         assert!(err.contains("too large"), "{err}");
+        // A readout is a share of the frame period.
+        for bad in [-0.1, 1.5] {
+            let mut slow = spec.clone();
+            slow.camera.readout_frames = bad;
+            let err = slow.validate().expect_err("readout").1;
+            assert!(err.contains("readout_frames"), "{err}");
+        }
+        let mut rolling = spec.clone();
+        rolling.camera.readout_frames = 0.7;
+        assert!(rolling.validate().is_ok());
     }
 
     #[test]
