@@ -627,7 +627,6 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
         let mut raise = 2.0;
         for _ in 0..10 {
             if let Some(step) = damped_step(&h, &g, mu, layout.params.threads) {
-                let predicted = predicted_decrease(&h, &g, &step);
                 let mut trial = state.moved(&step, focal);
                 layout.renormalise(&mut trial, target);
                 // A focal scale at which some crossing's ray cannot be formed drops that
@@ -638,8 +637,9 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
                     accepted = Some((trial, c));
                     // Nielsen's rule: the damping follows how well the quadratic model
                     // predicted the decrease (gain ratio ρ), not a fixed factor.
-                    let rho = (current - c) / predicted;
+                    let predicted = predicted_decrease(&h, &g, &step);
                     let shrink = if predicted > 0.0 {
+                        let rho = (current - c) / predicted;
                         (1.0 - (2.0 * rho - 1.0).powi(3)).max(1.0 / 3.0)
                     } else {
                         1.0 / 3.0
