@@ -32,7 +32,7 @@ use rayon::prelude::*;
 
 use super::estimate::{Estimate, EstimateParams, PoseMarginal, Spreads, MIN_REDUNDANCY, RIDGE};
 use super::evidence::{Evidence, Observation, Ray};
-use super::pose::{CrossPose, POSE_DOF};
+use super::pose::{CrossPose, PlaneLinearisation, POSE_DOF};
 use super::terms::{self, Loss};
 
 type V3 = Vector3<f64>;
@@ -158,28 +158,64 @@ struct Fit {
     cost: f64,
 }
 
-/// The robust cost of `pose` over `ties`, and its normal equations.
+/// The planes each tie's own plane meets, linearised once for a whole fit (the anchors
+/// are held): `None` for a tie at the pose's own cross centre.
+fn held_planes(ties: &[Tie], anchors: &[CrossPose]) -> Vec<Option<PlaneLinearisation>> {
+    ties.iter()
+        .map(|t| t.other.map(|(a, la)| anchors[a].linearise(la)))
+        .collect()
+}
+
+/// A tie's residual and its derivatives with respect to the fitted pose, from the pose's
+/// two planes linearised (`own`) and the held plane it meets (`held`, from
+/// [`held_planes`]): [`term`]'s `e` and `ja`, to the same bits.
+fn residual(
+    own: &[PlaneLinearisation; 2],
+    tie: &Tie,
+    held: Option<&PlaneLinearisation>,
+    focal_px: f64,
+    lambda: f64,
+) -> Option<(f64, [f64; 6])> {
+    match held {
+        Some(b) => terms::crossing_residual(&own[tie.laser], b, &tie.ray, focal_px, lambda),
+        None => terms::crossing_of(&own[0], &own[1], &tie.ray, focal_px, lambda)
+            .map(|t| (t.e, std::array::from_fn(|i| t.ja[i] + t.jb[i]))),
+    }
+}
+
+/// The robust cost of `pose` over `ties` (whose held planes are `held`), and its
+/// normal equations.
 fn normal_equations(
     pose: &CrossPose,
-    ties: &[Tie],
-    anchors: &[CrossPose],
-    ev: &Evidence,
+    (ties, held): (&[Tie], &[Option<PlaneLinearisation>]),
+    focal_px: f64,
     lambda: f64,
     loss: Loss,
     inflate: f64,
 ) -> (f64, M6, V6) {
     let (mut cost, mut h, mut g) = (0.0, M6::zeros(), V6::zeros());
-    for tie in ties {
-        let Some(t) = term(pose, tie, anchors, ev.focal_px, lambda) else {
+    let own = [pose.linearise(0), pose.linearise(1)];
+    for (tie, held) in ties.iter().zip(held) {
+        let Some((e, ja)) = residual(&own, tie, held.as_ref(), focal_px, lambda) else {
             continue;
         };
         let sigma = tie.sigma * inflate;
-        let x = t.e / sigma;
+        let x = e / sigma;
         cost += loss.cost(x);
         let w = loss.weight(x) / (sigma * sigma);
-        let j = V6::from_column_slice(&t.ja);
-        h += j * j.transpose() * w;
-        g += j * (w * t.e);
+        // The lower triangle of `j jᵀ w` (each entry `(j_r j_c) w`, as the whole
+        // product rounds it), mirrored below.
+        for c in 0..6 {
+            for r in c..6 {
+                h[(r, c)] += ja[r] * ja[c] * w;
+            }
+        }
+        g += V6::from_column_slice(&ja) * (w * e);
+    }
+    for c in 0..6 {
+        for r in c + 1..6 {
+            h[(c, r)] = h[(r, c)];
+        }
     }
     (cost, h, g)
 }
@@ -193,14 +229,18 @@ fn with_ridge(h: &M6) -> M6 {
 /// `|e| / σ`, times 1.4826.
 fn residual_scale(
     pose: &CrossPose,
-    ties: &[Tie],
-    anchors: &[CrossPose],
-    ev: &Evidence,
+    (ties, held): (&[Tie], &[Option<PlaneLinearisation>]),
+    focal_px: f64,
     lambda: f64,
 ) -> f64 {
+    let own = [pose.linearise(0), pose.linearise(1)];
     let x: Vec<f64> = ties
         .iter()
-        .filter_map(|tie| Some(term(pose, tie, anchors, ev.focal_px, lambda)?.e.abs() / tie.sigma))
+        .zip(held)
+        .filter_map(|(tie, held)| {
+            let (e, _) = residual(&own, tie, held.as_ref(), focal_px, lambda)?;
+            Some(e.abs() / tie.sigma)
+        })
         .collect();
     super::median(x).map_or(1.0, |m| super::MAD_TO_SIGMA * m)
 }
@@ -211,9 +251,8 @@ fn residual_scale(
 /// crossing an outlier (on exact data, at a spread of rounding, every one is).
 fn minimise(
     start: CrossPose,
-    ties: &[Tie],
-    anchors: &[CrossPose],
-    ev: &Evidence,
+    ties: (&[Tie], &[Option<PlaneLinearisation>]),
+    focal_px: f64,
     lambda: f64,
     params: &EstimateParams,
 ) -> Fit {
@@ -221,9 +260,9 @@ fn minimise(
         pose: start,
         cost: f64::INFINITY,
     };
-    let mut inflate = residual_scale(&start, ties, anchors, ev, lambda).max(1.0);
+    let mut inflate = residual_scale(&start, ties, focal_px, lambda).max(1.0);
     loop {
-        fit = minimise_at(fit.pose, ties, anchors, ev, lambda, params, inflate);
+        fit = minimise_at(fit.pose, ties, (focal_px, lambda), params, inflate);
         if inflate <= 1.0 {
             return fit;
         }
@@ -234,17 +273,14 @@ fn minimise(
 /// Levenberg–Marquardt over one pose from `start` at spreads `inflate` times the ties'.
 fn minimise_at(
     start: CrossPose,
-    ties: &[Tie],
-    anchors: &[CrossPose],
-    ev: &Evidence,
-    lambda: f64,
+    ties: (&[Tie], &[Option<PlaneLinearisation>]),
+    (focal_px, lambda): (f64, f64),
     params: &EstimateParams,
     inflate: f64,
 ) -> Fit {
     let loss = Loss::Cauchy(params.crossing_loss);
     let mut pose = start;
-    let (mut cost, mut h, mut g) =
-        normal_equations(&pose, ties, anchors, ev, lambda, loss, inflate);
+    let (mut cost, mut h, mut g) = normal_equations(&pose, ties, focal_px, lambda, loss, inflate);
     let mut mu = 1e-4;
     for _ in 0..params.max_iterations {
         let ridged = with_ridge(&h);
@@ -257,7 +293,7 @@ fn minimise_at(
             if let Some(step) = a.cholesky().map(|c| c.solve(&(-g))) {
                 let mut trial = pose;
                 trial.retract(step.as_slice());
-                let next = normal_equations(&trial, ties, anchors, ev, lambda, loss, inflate);
+                let next = normal_equations(&trial, ties, focal_px, lambda, loss, inflate);
                 if next.0.is_finite() && next.0 < cost {
                     accepted = Some((trial, next));
                     mu = (mu / 3.0).max(1e-12);
@@ -438,9 +474,10 @@ fn fit_pose(
     if ties.is_empty() {
         return None;
     }
+    let held = held_planes(ties, anchors);
     let best = starts(anchors, nearest, ties)
         .into_iter()
-        .map(|s| minimise(s, ties, anchors, ev, lambda, params))
+        .map(|s| minimise(s, (ties, &held), ev.focal_px, lambda, params))
         .min_by(|a, b| a.cost.total_cmp(&b.cost))?;
     let loss = Loss::Cauchy(params.crossing_loss);
     // H_ff, H_fA (by anchor pose; the focal scale's column apart), the scatter's C_ff.
@@ -581,6 +618,7 @@ pub fn complete(
     anchor_est: Estimate,
     params: &EstimateParams,
 ) -> Estimate {
+    let started = std::time::Instant::now();
     let mut by_pose: Vec<Vec<u32>> = vec![Vec::new(); ev.num_poses()];
     for (k, c) in ev.crossings.iter().enumerate() {
         let (pa, pb) = (ev.planes[c.a as usize].pose, ev.planes[c.b as usize].pose);
@@ -633,6 +671,11 @@ pub fn complete(
         .into_par_iter()
         .map(|fit| fit.map(|fit| fit.propagated(&anchor_est.covariance, params.estimate_focal)))
         .collect();
+    tracing::debug!(
+        poses = fitted.iter().filter(|f| f.is_some()).count(),
+        ms = started.elapsed().as_secs_f64() * 1e3,
+        "fitted the poses outside the anchors"
+    );
     let unknown = PoseMarginal::from_diagonal_element(f64::INFINITY);
     let mut poses = Vec::with_capacity(ev.num_poses());
     let mut marginals = Vec::with_capacity(ev.num_poses());
@@ -670,22 +713,16 @@ pub fn complete(
         .par_iter()
         .map(|c| {
             let (a, b) = (ev.planes[c.a as usize], ev.planes[c.b as usize]);
-            let t = ev.rays.ray(c.u, lambda).and_then(|ray| {
-                terms::crossing(
-                    &poses[a.pose as usize],
-                    usize::from(a.laser),
-                    &poses[b.pose as usize],
-                    usize::from(b.laser),
-                    &ray,
-                    ev.focal_px,
-                    lambda,
-                )
+            let e = ev.rays.ray(c.u, lambda).and_then(|ray| {
+                let a = poses[a.pose as usize].linearise(usize::from(a.laser));
+                let b = poses[b.pose as usize].linearise(usize::from(b.laser));
+                terms::crossing_residual(&a, &b, &ray, ev.focal_px, lambda).map(|(e, _)| e)
             });
             let known = marginals[a.pose as usize][(0, 0)].is_finite()
                 && marginals[b.pose as usize][(0, 0)].is_finite();
-            match t {
-                Some(t) if known => {
-                    let x = t.e / spreads.crossing_px[c.class as usize];
+            match e {
+                Some(e) if known => {
+                    let x = e / spreads.crossing_px[c.class as usize];
                     (loss.weight(x) as f32, x as f32)
                 }
                 _ => (0.0, f32::NAN),
@@ -706,5 +743,60 @@ pub fn complete(
         redundancy: anchor_est.redundancy,
         covariance: anchor_est.covariance,
         joint_of_pose: split.anchor_of_pose.clone(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Rotation3;
+
+    fn pose(s: f64) -> CrossPose {
+        CrossPose {
+            rotation: Rotation3::from_euler_angles(0.3 + s, -0.7 * s, 1.1).into_inner(),
+            centre: V3::new(0.4 + 0.1 * s, -0.2, 0.1 * s),
+        }
+    }
+
+    /// The fit's normal equations, from each tie's residual alone and the pose's planes
+    /// linearised once, are those of the whole terms ([`term`]) to the bit: the cost,
+    /// every entry of `H` (its upper triangle mirrored) and the gradient.
+    #[test]
+    fn the_normal_equations_are_the_whole_terms_to_the_bit() {
+        let anchors: Vec<CrossPose> = (0..5).map(|k| pose(0.31 * f64::from(k) - 0.5)).collect();
+        let ties: Vec<Tie> = (0..40)
+            .map(|k| Tie {
+                laser: k % 2,
+                other: (k % 7 != 0).then_some((k % 5, (k / 2) % 2)),
+                ray: Ray {
+                    r: V3::new(0.02 * (k as f64) - 0.4, 0.3 - 0.015 * (k as f64), 1.0),
+                    dr_dscale: V3::new(-0.1, 0.07, 0.0),
+                },
+                sigma: 0.05 + 0.01 * (k % 3) as f64,
+                class: k % 2,
+            })
+            .collect();
+        let fitted = pose(0.2);
+        let (focal_px, lambda, loss, inflate) = (1100.0, 1.03, Loss::Cauchy(2.0), 1.7);
+        let held = held_planes(&ties, &anchors);
+        let (cost, h, g) =
+            normal_equations(&fitted, (&ties, &held), focal_px, lambda, loss, inflate);
+        let (mut cost0, mut h0, mut g0) = (0.0, M6::zeros(), V6::zeros());
+        for tie in &ties {
+            let Some(t) = term(&fitted, tie, &anchors, focal_px, lambda) else {
+                continue;
+            };
+            let sigma = tie.sigma * inflate;
+            let x = t.e / sigma;
+            cost0 += loss.cost(x);
+            let w = loss.weight(x) / (sigma * sigma);
+            let j = V6::from_column_slice(&t.ja);
+            h0 += j * j.transpose() * w;
+            g0 += j * (w * t.e);
+        }
+        assert!(cost0 > 0.0 && h0.trace() > 0.0);
+        assert_eq!(cost.to_bits(), cost0.to_bits());
+        assert_eq!(h.map(f64::to_bits), h0.map(f64::to_bits));
+        assert_eq!(g.map(f64::to_bits), g0.map(f64::to_bits));
     }
 }

@@ -60,8 +60,65 @@ pub fn crossing(
     focal_px: f64,
     lambda: f64,
 ) -> Option<CrossingTerm> {
-    let a = pa.linearise(la);
-    let b = pb.linearise(lb);
+    crossing_of(&pa.linearise(la), &pb.linearise(lb), ray, focal_px, lambda)
+}
+
+/// [`crossing`] of two planes already linearised.
+pub fn crossing_of(
+    a: &PlaneLinearisation,
+    b: &PlaneLinearisation,
+    ray: &Ray,
+    focal_px: f64,
+    lambda: f64,
+) -> Option<CrossingTerm> {
+    let line = image_line(a, b, ray, focal_px, lambda)?;
+    let (l, m) = (line.l, line.m);
+    let (ja, jb) = chain(a, b, &line.g);
+    // The line's turn: φ = t̂ · l_xy / m with t̂ held, ∂φ/∂l = (t̂, 0) / m.
+    let turn = V3::new(-l.y / (m * m), l.x / (m * m), 0.0);
+    let (ta, tb) = chain(a, b, &turn);
+    let j_scale = line.s / m * l.dot(&ray.dr_dscale) + line.e / lambda;
+    Some(CrossingTerm {
+        e: line.e,
+        ja,
+        jb,
+        j_scale,
+        ta,
+        tb,
+    })
+}
+
+/// The residual of [`crossing_of`] and its derivatives with respect to plane `a`'s pose
+/// alone (`e` and `ja`, to the same bits): what a fit of that pose, the other held,
+/// needs at every step. A third of the work of the whole term.
+pub fn crossing_residual(
+    a: &PlaneLinearisation,
+    b: &PlaneLinearisation,
+    ray: &Ray,
+    focal_px: f64,
+    lambda: f64,
+) -> Option<(f64, [f64; 6])> {
+    let line = image_line(a, b, ray, focal_px, lambda)?;
+    Some((line.e, chain_first(a, b, &line.g)))
+}
+
+/// The image line `l` where two planes meet, `m = |l_xy|`, the corrected focal length
+/// `s`, the residual `e` at a ray and its gradient `g = ∂e/∂l`.
+struct ImageLine {
+    l: V3,
+    m: f64,
+    s: f64,
+    e: f64,
+    g: V3,
+}
+
+fn image_line(
+    a: &PlaneLinearisation,
+    b: &PlaneLinearisation,
+    ray: &Ray,
+    focal_px: f64,
+    lambda: f64,
+) -> Option<ImageLine> {
     let l = a.n * b.d - b.n * a.d;
     let m = l.x.hypot(l.y);
     if m.is_nan() || m <= MIN_LINE_DIRECTION * l.norm() {
@@ -76,19 +133,7 @@ pub fn crossing(
         s * (r.y / m - q * l.y / (m * m * m)),
         s * r.z / m,
     );
-    let (ja, jb) = chain(&a, &b, &g);
-    // The line's turn: φ = t̂ · l_xy / m with t̂ held, ∂φ/∂l = (t̂, 0) / m.
-    let turn = V3::new(-l.y / (m * m), l.x / (m * m), 0.0);
-    let (ta, tb) = chain(&a, &b, &turn);
-    let j_scale = s / m * l.dot(&ray.dr_dscale) + e / lambda;
-    Some(CrossingTerm {
-        e,
-        ja,
-        jb,
-        j_scale,
-        ta,
-        tb,
-    })
+    Some(ImageLine { l, m, s, e, g })
 }
 
 /// The derivatives of a function of the line `l = d_b n_a − d_a n_b` with gradient `g`
@@ -96,16 +141,18 @@ pub fn crossing(
 /// `∂/∂n_a = d_b g`, `∂/∂d_a = −g · n_b`, `∂/∂n_b = −d_a g`, `∂/∂d_b = g · n_a`, then
 /// `∂/∂θ = (∂n/∂θ)ᵀ ∂/∂n + ∂/∂d ∂d/∂θ` and `∂/∂C = ∂/∂d ∂d/∂C`.
 fn chain(a: &PlaneLinearisation, b: &PlaneLinearisation, g: &V3) -> ([f64; 6], [f64; 6]) {
-    let dda = -g.dot(&b.n);
     let ddb = g.dot(&a.n);
-    let ta = a.dn_dtheta.transpose() * (g * b.d) + a.dd_dtheta * dda;
-    let ca = a.dd_dcentre * dda;
     let tb = b.dn_dtheta.transpose() * (g * (-a.d)) + b.dd_dtheta * ddb;
     let cb = b.dd_dcentre * ddb;
-    (
-        [ta.x, ta.y, ta.z, ca.x, ca.y, ca.z],
-        [tb.x, tb.y, tb.z, cb.x, cb.y, cb.z],
-    )
+    (chain_first(a, b, g), [tb.x, tb.y, tb.z, cb.x, cb.y, cb.z])
+}
+
+/// The first half of [`chain`]: the derivatives with respect to plane `a`'s pose.
+fn chain_first(a: &PlaneLinearisation, b: &PlaneLinearisation, g: &V3) -> [f64; 6] {
+    let dda = -g.dot(&b.n);
+    let ta = a.dn_dtheta.transpose() * (g * b.d) + a.dd_dtheta * dda;
+    let ca = a.dd_dcentre * dda;
+    [ta.x, ta.y, ta.z, ca.x, ca.y, ca.z]
 }
 
 /// A motion residual (3 components) and its 3×3 derivatives with respect to the
@@ -216,6 +263,32 @@ mod tests {
         let mut q = *p;
         q.retract(&d);
         q
+    }
+
+    /// The fits of one pose take the residual and its first half of derivatives alone;
+    /// they must be the whole term's to the bit, or a fit would stop elsewhere.
+    #[test]
+    fn the_residual_alone_is_the_whole_terms_to_the_bit() {
+        for k in 0..50 {
+            let s = 0.13 * k as f64;
+            let (pa, pb) = (pose(s), pose(0.4 - 0.7 * s));
+            let ray = Ray {
+                r: V3::new(0.12 - 0.01 * s, -0.08 + 0.02 * s, 1.0),
+                dr_dscale: V3::new(-0.1, 0.07, 0.0),
+            };
+            let (la, lb) = (k % 2, (k / 2) % 2);
+            let (a, b) = (pa.linearise(la), pb.linearise(lb));
+            let whole = crossing(&pa, la, &pb, lb, &ray, 1200.0, 1.1);
+            let alone = crossing_residual(&a, &b, &ray, 1200.0, 1.1);
+            match (whole, alone) {
+                (Some(t), Some((e, ja))) => {
+                    assert_eq!(t.e.to_bits(), e.to_bits(), "case {k}");
+                    assert_eq!(t.ja.map(f64::to_bits), ja.map(f64::to_bits), "case {k}");
+                }
+                (None, None) => {}
+                (t, r) => panic!("case {k}: {t:?} against {r:?}"),
+            }
+        }
     }
 
     #[test]
