@@ -194,7 +194,7 @@ fn normal_equations(
     loss: Loss,
     inflate: f64,
 ) -> (f64, M6, V6) {
-    let (mut cost, mut h, mut g) = (0.0, M6::zeros(), V6::zeros());
+    let (mut cost, mut h, mut g) = (terms::CostSum::new(loss), M6::zeros(), V6::zeros());
     let own = [pose.linearise(0), pose.linearise(1)];
     for (tie, held) in ties.iter().zip(held) {
         let Some((e, ja)) = residual(&own, tie, held.as_ref(), focal_px, lambda) else {
@@ -202,7 +202,7 @@ fn normal_equations(
         };
         let sigma = tie.sigma * inflate;
         let x = e / sigma;
-        cost += loss.cost(x);
+        cost.add(x);
         let w = loss.weight(x) / (sigma * sigma);
         // The lower triangle of `j jᵀ w` (each entry `(j_r j_c) w`, as the whole
         // product rounds it), mirrored below.
@@ -218,7 +218,7 @@ fn normal_equations(
             h[(c, r)] = h[(r, c)];
         }
     }
-    (cost, h, g)
+    (cost.total(), h, g)
 }
 
 fn with_ridge(h: &M6) -> M6 {
@@ -850,8 +850,8 @@ mod tests {
     }
 
     /// The fit's normal equations, from each tie's residual alone and the pose's planes
-    /// linearised once, are those of the whole terms ([`term`]) to the bit: the cost,
-    /// every entry of `H` (its upper triangle mirrored) and the gradient.
+    /// linearised once, are those of the whole terms ([`term`]) to the bit: every entry
+    /// of `H` (its upper triangle mirrored) and the gradient; the cost to rounding.
     #[test]
     fn the_normal_equations_are_the_whole_terms_to_the_bit() {
         let anchors: Vec<CrossPose> = (0..5).map(|k| pose(0.31 * f64::from(k) - 0.5)).collect();

@@ -335,13 +335,20 @@ impl<'a> Layout<'a> {
     fn cost_and_rays(&self, state: &State, spreads: &Spreads) -> (f64, usize) {
         let rays = self.rays(state.focal_scale);
         let formed = rays.iter().filter(|r| r.is_some()).count();
-        let mut cost = 0.0;
-        for k in 0..self.evidence.crossings.len() {
-            if let Some(t) = self.crossing(state, k, &rays) {
-                let sigma = spreads.crossing_px[self.evidence.crossings[k].class as usize];
-                cost += self.crossing_loss().cost(t.e / sigma);
+        // The residuals alone, and their losses summed by products (`terms::CostSum`).
+        let ev = self.evidence;
+        let mut crossings = terms::CostSum::new(self.crossing_loss());
+        for (c, ray) in ev.crossings.iter().zip(&rays) {
+            let Some(ray) = ray else { continue };
+            let (a, b) = (ev.planes[c.a as usize], ev.planes[c.b as usize]);
+            let (pa, pb) = (&state.poses[a.pose as usize], &state.poses[b.pose as usize]);
+            let (la, lb) = (pa.linearise(a.laser.into()), pb.linearise(b.laser.into()));
+            let lambda = state.focal_scale;
+            if let Some(e) = terms::crossing_error(&la, &lb, ray, ev.focal_px, lambda) {
+                crossings.add(e / spreads.crossing_px[c.class as usize]);
             }
         }
+        let mut cost = crossings.total();
         for t in &self.triples {
             let (c, r) = self.motion_terms(state, t);
             cost += self.motion_cost(&c, &r, spreads);
@@ -366,7 +373,7 @@ impl<'a> Layout<'a> {
         let n = self.n;
         let mut h = Mat::<f64>::zeros(n, n);
         let mut g = vec![0.0; n];
-        let mut cost = 0.0;
+        let mut crossing_cost = terms::CostSum::new(self.crossing_loss());
         let rays = self.rays(state.focal_scale);
         let fi = self.focal_index();
         let ev = self.evidence;
@@ -377,7 +384,7 @@ impl<'a> Layout<'a> {
             let c = &ev.crossings[k];
             let sigma = spreads.crossing_px[c.class as usize];
             let x = t.e / sigma;
-            cost += self.crossing_loss().cost(x);
+            crossing_cost.add(x);
             let w = self.crossing_loss().weight(x) / (sigma * sigma);
             let (pa, pb) = (
                 ev.planes[c.a as usize].pose as usize * POSE_DOF,
@@ -401,6 +408,7 @@ impl<'a> Layout<'a> {
             };
             accumulate(&mut h, &mut g, &idx[..len], &jac[..len], w, t.e);
         }
+        let mut cost = crossing_cost.total();
         for t in &self.triples {
             let (cm, rm) = self.motion_terms(state, t);
             cost += self.motion_cost(&cm, &rm, spreads);

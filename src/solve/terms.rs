@@ -102,6 +102,17 @@ pub fn crossing_residual(
     Some((line.e, chain_first(a, b, &line.g)))
 }
 
+/// The residual of [`crossing_of`] alone, to the same bits: what a cost needs.
+pub fn crossing_error(
+    a: &PlaneLinearisation,
+    b: &PlaneLinearisation,
+    ray: &Ray,
+    focal_px: f64,
+    lambda: f64,
+) -> Option<f64> {
+    image_line(a, b, ray, focal_px, lambda).map(|line| line.e)
+}
+
 /// The image line `l` where two planes meet, `m = |l_xy|`, the corrected focal length
 /// `s`, the residual `e` at a ray and its gradient `g = ∂e/∂l`.
 struct ImageLine {
@@ -245,6 +256,60 @@ impl Loss {
     }
 }
 
+/// A sum of [`Loss::cost`] over many residuals, with Cauchy's logarithms taken of
+/// products: `Σ c² ln(1 + aᵢ) = c² ln Π(1 + aᵢ)`, one `ln` per [`CostSum::RUN`] terms
+/// (or sooner, before the product could overflow). In the fits of single poses the
+/// `ln_1p` per crossing was the largest item of a 5,400-frame solve. The sum differs
+/// from the term-by-term one in rounding only (`1 + a` drops what of `a` is below
+/// 10⁻¹⁶; relative to a cost that is 10⁻¹³ or less).
+#[derive(Clone, Copy, Debug)]
+pub struct CostSum {
+    loss: Loss,
+    sum: f64,
+    product: f64,
+    terms: u32,
+}
+
+impl CostSum {
+    /// Terms multiplied together before one logarithm.
+    const RUN: u32 = 16;
+    /// A product past this is taken in at once: one more factor cannot overflow it
+    /// unless its own `a` is beyond 10²⁰⁸, a residual of 10¹⁰⁴ spreads.
+    const LARGE: f64 = 1e100;
+
+    pub fn new(loss: Loss) -> Self {
+        Self {
+            loss,
+            sum: 0.0,
+            product: 1.0,
+            terms: 0,
+        }
+    }
+
+    /// Adds `ρ(x)`.
+    pub fn add(&mut self, x: f64) {
+        match self.loss {
+            Loss::Cauchy(c) => {
+                self.product *= 1.0 + x * x / (c * c);
+                self.terms += 1;
+                if self.terms == Self::RUN || self.product > Self::LARGE {
+                    self.sum += self.product.ln();
+                    (self.product, self.terms) = (1.0, 0);
+                }
+            }
+            Loss::Huber(_) => self.sum += self.loss.cost(x),
+        }
+    }
+
+    /// The sum so far.
+    pub fn total(&self) -> f64 {
+        match self.loss {
+            Loss::Cauchy(c) => c * c * (self.sum + self.product.ln()),
+            Loss::Huber(_) => self.sum,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -265,6 +330,40 @@ mod tests {
         q
     }
 
+    /// The sum of Cauchy's costs by products is the term-by-term sum to rounding,
+    /// from residuals of a thousandth of a spread to 10⁸ spreads (products that would
+    /// overflow without the early logarithm), and Huber's is the same sum.
+    #[test]
+    fn a_cost_summed_by_products_is_the_sum_of_the_costs() {
+        let mut rng = crate::rng::SplitMix64::new(11);
+        for loss in [Loss::Cauchy(3.0), Loss::Cauchy(0.5), Loss::Huber(2.0)] {
+            for n in [0usize, 1, 15, 16, 17, 200, 5000] {
+                let xs: Vec<f64> = (0..n)
+                    .map(|_| {
+                        let magnitude = 10f64.powf(-3.0 + 11.0 * rng.next_f64());
+                        if rng.next_f64() < 0.5 {
+                            -magnitude
+                        } else {
+                            magnitude
+                        }
+                    })
+                    .collect();
+                let mut sum = CostSum::new(loss);
+                xs.iter().for_each(|&x| sum.add(x));
+                let direct: f64 = xs.iter().map(|&x| loss.cost(x)).sum();
+                let total = sum.total();
+                assert!(total.is_finite(), "{loss:?} over {n}: {total}");
+                assert!(
+                    (total - direct).abs() <= 1e-12 * direct,
+                    "{loss:?} over {n}: {total} against {direct}"
+                );
+            }
+        }
+        let mut sum = CostSum::new(Loss::Cauchy(3.0));
+        sum.add(f64::INFINITY);
+        assert_eq!(sum.total(), f64::INFINITY);
+    }
+
     /// The fits of one pose take the residual and its first half of derivatives alone;
     /// they must be the whole term's to the bit, or a fit would stop elsewhere.
     #[test]
@@ -280,6 +379,12 @@ mod tests {
             let (a, b) = (pa.linearise(la), pb.linearise(lb));
             let whole = crossing(&pa, la, &pb, lb, &ray, 1200.0, 1.1);
             let alone = crossing_residual(&a, &b, &ray, 1200.0, 1.1);
+            let error = crossing_error(&a, &b, &ray, 1200.0, 1.1);
+            assert_eq!(
+                whole.map(|t| t.e.to_bits()),
+                error.map(f64::to_bits),
+                "case {k}"
+            );
             match (whole, alone) {
                 (Some(t), Some((e, ja))) => {
                     assert_eq!(t.e.to_bits(), e.to_bits(), "case {k}");
