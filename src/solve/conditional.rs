@@ -772,15 +772,8 @@ pub fn complete(
 
 #[cfg(test)]
 mod tests {
+    use super::super::terms::tests::pose;
     use super::*;
-    use nalgebra::Rotation3;
-
-    fn pose(s: f64) -> CrossPose {
-        CrossPose {
-            rotation: Rotation3::from_euler_angles(0.3 + s, -0.7 * s, 1.1).into_inner(),
-            centre: V3::new(0.4 + 0.1 * s, -0.2, 0.1 * s),
-        }
-    }
 
     /// A pose fitted again at wider spreads from its own end (the repeat in
     /// [`complete`]) lands where the fit from its cold starts does, to a hundredth of

@@ -311,11 +311,12 @@ impl CostSum {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use nalgebra::Rotation3;
 
-    fn pose(seed: f64) -> CrossPose {
+    /// A pose of a family turned and moved with `seed` (also the fits' tests').
+    pub(in crate::solve) fn pose(seed: f64) -> CrossPose {
         CrossPose {
             rotation: Rotation3::from_euler_angles(0.3 + seed, -0.7 * seed, 1.1).into_inner(),
             centre: V3::new(0.4 + 0.1 * seed, -0.2, 0.1 * seed),
