@@ -300,6 +300,21 @@ impl<'a> Layout<'a> {
         )
     }
 
+    /// The residual of [`Self::crossing`] alone (the same bits): what a cost needs.
+    fn crossing_error(&self, state: &State, k: usize, rays: &[Option<Ray>]) -> Option<f64> {
+        let ev = self.evidence;
+        let c = &ev.crossings[k];
+        let (a, b) = (ev.planes[c.a as usize], ev.planes[c.b as usize]);
+        let ray = rays[k].as_ref()?;
+        terms::crossing_error(
+            &state.poses[a.pose as usize].linearise(usize::from(a.laser)),
+            &state.poses[b.pose as usize].linearise(usize::from(b.laser)),
+            ray,
+            ev.focal_px,
+            state.focal_scale,
+        )
+    }
+
     pub(super) fn rays(&self, lambda: f64) -> Vec<Option<Ray>> {
         self.evidence
             .crossings
@@ -336,15 +351,9 @@ impl<'a> Layout<'a> {
         let rays = self.rays(state.focal_scale);
         let formed = rays.iter().filter(|r| r.is_some()).count();
         // The residuals alone, and their losses summed by products (`terms::CostSum`).
-        let ev = self.evidence;
         let mut crossings = terms::CostSum::new(self.crossing_loss());
-        for (c, ray) in ev.crossings.iter().zip(&rays) {
-            let Some(ray) = ray else { continue };
-            let (a, b) = (ev.planes[c.a as usize], ev.planes[c.b as usize]);
-            let (pa, pb) = (&state.poses[a.pose as usize], &state.poses[b.pose as usize]);
-            let (la, lb) = (pa.linearise(a.laser.into()), pb.linearise(b.laser.into()));
-            let lambda = state.focal_scale;
-            if let Some(e) = terms::crossing_error(&la, &lb, ray, ev.focal_px, lambda) {
+        for (k, c) in self.evidence.crossings.iter().enumerate() {
+            if let Some(e) = self.crossing_error(state, k, &rays) {
                 crossings.add(e / spreads.crossing_px[c.class as usize]);
             }
         }
