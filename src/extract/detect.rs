@@ -12,6 +12,7 @@
 //! kernel's support. All buffers are full-frame and reused; nothing is allocated per
 //! frame once the point list has grown to its working size.
 
+mod profile;
 mod width;
 use width::{NO_LINE, WIDTH_MARGIN};
 
@@ -274,6 +275,9 @@ pub(crate) struct Detector {
     pub texture_kept: bool,
     /// Active tiles not searched for that since the last [`Self::prepare`].
     pub round_tiles: usize,
+    /// The test by which, where the response holds texture, a ridge point on a patch of
+    /// surface is told from one on a beam, for the local background's window.
+    flat_top: profile::FlatTop,
     pub response: Vec<f32>,
     /// Per pixel: bit 0 where the response was zeroed for another laser's colour, bit 1
     /// where the laser's own channel is clipped (against a local background only).
@@ -321,6 +325,7 @@ impl Detector {
             tile_level: vec![0; tiles_x * tiles_y],
             texture_kept: false,
             round_tiles: 0,
+            flat_top: profile::FlatTop::new(super::local::DEFAULT_RADIUS_PX),
             response: vec![0.0; n],
             masked: vec![0; n],
             row_s: vec![0.0; n],
@@ -872,6 +877,18 @@ impl Detector {
                 // pedestal beside it) does; the bright edge of a wide glow band, whose
                 // Hessian also reads as a ridge, has the glow on one flank and does not.
                 if below > FLANK_RATIO * centre || above > FLANK_RATIO * centre {
+                    continue;
+                }
+                if self.texture_kept
+                    && self.masked[y * w + x] & 2 == 0
+                    && self.flat_top.flat_topped(
+                        |sx, sy| bilinear(&self.response, (w, h), sx, sy),
+                        [px, py],
+                        [nx, ny],
+                        centre,
+                        2.0 * flank_px + 2.0,
+                    )
+                {
                     continue;
                 }
                 let t = ox * nx + oy * ny;
