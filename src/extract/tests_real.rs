@@ -425,25 +425,7 @@ fn fringes_and_bands_along_edges_are_not_stripes() {
     // docs/extraction.md); room 1 had 32 of 1,803 with the step at 4 px alone and has
     // 2 of 1,773 now. Recall 0.709 and 0.981 either way.
     for (seed, frame, most, recall) in [(18, 18, 0.2, 0.7), (1, 5, 0.01, 0.97)] {
-        let mut scan = Realistic::in_air(seed).expect("in air");
-        let mut score = Score::default();
-        scan.extract_into(frame, &mut score);
-        eprintln!(
-            "scan {seed}, frame {frame}: recall {:.3}, stray {} of {}",
-            score.recall(),
-            score.stray,
-            score.points
-        );
-        assert!(
-            score.recall() >= recall,
-            "scan {seed}: recall {}",
-            score.recall()
-        );
-        assert!(
-            score.stray_share() <= most,
-            "scan {seed}: stray {}",
-            score.stray_share()
-        );
+        assert_realistic_frame(seed, frame, most, recall);
     }
 }
 
@@ -456,25 +438,31 @@ fn fringes_and_bands_along_edges_are_not_stripes() {
 #[test]
 fn faces_of_the_lasers_own_hue_in_realistic_scenes_are_not_stripes() {
     for (seed, frame, most, recall) in [(16, 5, 0.01, 0.9), (14, 5, 0.03, 0.88)] {
-        let mut scan = Realistic::in_air(seed).expect("in air");
-        let mut score = Score::default();
-        scan.extract_into(frame, &mut score);
-        eprintln!(
-            "scan {seed}, frame {frame}: recall {:.3}, stray {} of {}",
-            score.recall(),
-            score.stray,
-            score.points
-        );
-        assert!(
-            score.recall() >= recall,
-            "scan {seed}: recall {}",
-            score.recall()
-        );
-        assert!(
-            score.stray_share() <= most,
-            "scan {seed}: stray {} of {}",
-            score.stray,
-            score.points
-        );
+        assert_realistic_frame(seed, frame, most, recall);
     }
+}
+
+/// Realistic scan `seed` in air, frame `frame` against the local background: recall at
+/// least `recall`, at most `most` of the points stray.
+fn assert_realistic_frame(seed: u64, frame: usize, most: f64, recall: f64) {
+    let mut scan = Realistic::in_air(seed).expect("in air");
+    let mut score = Score::default();
+    scan.extract_into(frame, &mut score);
+    eprintln!(
+        "scan {seed}, frame {frame}: recall {:.3}, stray {} of {}",
+        score.recall(),
+        score.stray,
+        score.points
+    );
+    assert!(
+        score.recall() >= recall,
+        "scan {seed}: recall {}",
+        score.recall()
+    );
+    assert!(
+        score.stray_share() <= most,
+        "scan {seed}: stray {} of {}",
+        score.stray,
+        score.points
+    );
 }
