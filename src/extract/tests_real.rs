@@ -381,9 +381,11 @@ impl Realistic {
 
 /// Realistic simulated scans (lit rooms, clutter and tables; none under water) with
 /// no laser-off frame: recall of lit pixels within 1 px, points off every stripe. The
-/// bounds guard what the local background gives today (recall ~0.9, stray ~0.05-0.3:
-/// a surface's own texture in a laser's hue still reads as stripe); the aim
-/// is 0.95 and 0.005 (`cargo bench --bench realistic` prints both policies).
+/// bounds guard what the local background gives today: on these four frames recall
+/// 0.925 and stray 0.046 (2026-12-06; 0.069 before the flat-top test). White things on
+/// a coloured surface and laser-hued texture narrower than a beam still read as
+/// stripe. The aim is 0.95 and 0.005 (`cargo bench --bench realistic` prints
+/// both policies).
 #[test]
 fn realistic_frames_without_background() {
     let mut score = Score::default();
@@ -406,7 +408,7 @@ fn realistic_frames_without_background() {
         score.stray_share()
     );
     assert!(score.recall() >= 0.9, "recall {}", score.recall());
-    assert!(score.stray_share() <= 0.35, "stray {}", score.stray_share());
+    assert!(score.stray_share() <= 0.06, "stray {}", score.stray_share());
 }
 
 /// Realistic table 18's frame 18: a box in the blue laser's own hue, checkered with
