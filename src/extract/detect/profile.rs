@@ -18,12 +18,11 @@
 #[cfg(test)]
 const GAUSSIAN_RATIO: f32 = 2.685;
 
-/// Profiles narrower than this at half their centre (px) are not judged: a flat top
-/// this narrow is blurred by the optics towards a bell, and a beam's 80 % width
-/// (under 2.6 px) is too few pixels to measure (judged from 4 px, the realistic
-/// bench lost 3 % of its recall). The same limit as the tiles' own flatness rule
-/// (`width::FLAT_MIN_WIDTH`).
-const MIN_JUDGED_WIDTH_PX: f32 = 6.0;
+/// Profiles narrower than this at half their centre (px) are not judged: the tiles'
+/// own flatness limit. A flat top this narrow is blurred by the optics towards a bell,
+/// and a beam's 80 % width (under 2.6 px) is too few pixels to measure (judged from
+/// 4 px, the realistic bench lost 3 % of its recall).
+const MIN_JUDGED_WIDTH_PX: f32 = super::width::FLAT_MIN_WIDTH as f32;
 
 /// The optics' blur (σ, px) assumed for the sides of a flat top: a focused camera's.
 /// More blur makes a flat top rounder, and the test more lenient.

@@ -103,8 +103,9 @@ pub(super) const NO_LINE: u8 = u8::MAX;
 const FLAT_RATIO: f64 = 0.8;
 /// Below this half-maximum width (px) a band's flatness is not judged: at 6 px a
 /// Gaussian's top band is 3.4 px, and a pixel more of it, by sampling, gives 0.74, still
-/// under [`FLAT_RATIO`]; narrower, a pixel is too much of the measure.
-const FLAT_MIN_WIDTH: f64 = 6.0;
+/// under [`FLAT_RATIO`]; narrower, a pixel is too much of the measure. Each ridge
+/// point's own profile test (`profile.rs`) starts at the same width.
+pub(super) const FLAT_MIN_WIDTH: f64 = 6.0;
 
 impl Detector {
     /// Full width at half maximum (px) of the stripe in active tile `t`, measured on
