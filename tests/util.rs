@@ -58,3 +58,11 @@ pub fn reconstruct(
         .arg(out);
     cmd
 }
+
+/// A TCP port free on loopback a moment ago (for a child process to bind).
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free port")
+        .port()
+}

@@ -28,6 +28,11 @@ pub(crate) fn serve(dir: &Path, input: &Path, rate: &str) -> Command {
 
 /// [`serve`] with the live view on `http` ("" for none).
 pub(crate) fn serve_on(dir: &Path, input: &Path, rate: &str, http: &str) -> Command {
+    serve_with(dir, input, rate, http, "")
+}
+
+/// [`serve_on`] with the cloud stream also on TCP at `tcp` ("" for none).
+pub(crate) fn serve_with(dir: &Path, input: &Path, rate: &str, http: &str, tcp: &str) -> Command {
     let mut cmd = crossline();
     cmd.arg("serve")
         .arg("--camera")
@@ -45,7 +50,7 @@ pub(crate) fn serve_on(dir: &Path, input: &Path, rate: &str, http: &str) -> Comm
         .arg(dir.join("status.sock"))
         .arg("--stream-unix")
         .arg(dir.join("cloud.sock"))
-        .args(["--stream-tcp", ""])
+        .args(["--stream-tcp", tcp])
         .args(["--http", http]);
     cmd
 }
@@ -228,8 +233,13 @@ fn stuck_client_does_not_stop_the_pipeline() {
         "[serve]\nclient_queue_mib = 0\ndrain_timeout_s = 1.0\n",
     )
     .expect("config");
+    // The stuck client is on TCP with a receive buffer fixed small. On a Unix socket
+    // the kernel holds up to the daemon's send buffer (about 208 KiB by default) for a
+    // client that never reads: the fixture's whole stream can fit in it, and then the
+    // client is, rightly, never found stuck (this test failed so, now and then).
+    let addr = format!("127.0.0.1:{}", crate::util::free_port());
     // Real time, so that the client is surely connected before the cloud flows.
-    let mut child = serve(dir, &dump(), "realtime")
+    let mut child = serve_with(dir, &dump(), "realtime", "", &addr)
         .arg("--config")
         .arg(&config)
         .stderr(Stdio::null())
@@ -237,7 +247,7 @@ fn stuck_client_does_not_stop_the_pipeline() {
         .expect("spawn serve");
     wait_for(&dir.join("cloud.sock"), Duration::from_secs(20));
     // Connects and never reads.
-    let stuck = UnixStream::connect(dir.join("cloud.sock")).expect("connect");
+    let stuck = small_buffered_client(&addr);
     let status = wait_exit(&mut child, Duration::from_secs(60));
     assert!(status.success(), "serve failed: {status}");
     drop(stuck);
@@ -250,6 +260,18 @@ fn stuck_client_does_not_stop_the_pipeline() {
         "the stuck client was neither resynchronised nor dropped: {r}"
     );
     assert!(read_ply(&dir.join("cloud.ply")).expect("cloud").len() > 10_000);
+}
+
+/// A TCP client of the cloud stream whose receive buffer is 4 KiB (loopback TCP would
+/// otherwise grow it to MiBs and take in the whole scan).
+fn small_buffered_client(addr: &str) -> std::net::TcpStream {
+    let sock =
+        socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None).expect("a socket");
+    sock.set_recv_buffer_size(4096).expect("SO_RCVBUF");
+    let to: std::net::SocketAddr = addr.parse().expect("an address");
+    sock.connect(&to.into())
+        .expect("connect to the cloud stream");
+    sock.into()
 }
 
 #[test]
