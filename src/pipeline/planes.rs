@@ -83,14 +83,25 @@ impl PlaneCurves {
     }
 
     /// Index of the dense point of curve `ci` nearest `u` (searched between the two
-    /// vertices of the polyline segment nearest `u`).
+    /// vertices of the polyline segment nearest `u`, outwards from where `u` projects
+    /// onto the segment: the dense points run along it about evenly).
     pub(crate) fn nearest_point(&self, ci: usize, u: [f64; 2]) -> u32 {
         let Some((_, k)) = self.nearest_segment(ci, u) else {
             return 0;
         };
         let (start, end) = self.segment_span(ci, k);
         let points = &self.curves[ci].points[start..=end];
-        let nearest = crate::intersect::nearest_index(points, u, self.max_step[ci]);
+        let guess = match &self.curves[ci].polyline[k..] {
+            [a, b, ..] => {
+                let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+                let len2 = ex * ex + ey * ey;
+                let t = ((u[0] - a[0]) * ex + (u[1] - a[1]) * ey) / len2;
+                // NaN (a segment of no length) becomes 0.
+                (t.clamp(0.0, 1.0) * (end - start) as f64).round() as usize
+            }
+            _ => 0,
+        };
+        let nearest = crate::intersect::nearest_index_from(points, u, self.max_step[ci], guess);
         (start + nearest.unwrap_or(0)) as u32
     }
 
