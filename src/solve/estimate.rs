@@ -215,7 +215,15 @@ pub(super) struct Layout<'a> {
     triples: Vec<Triple>,
     /// Number of unknowns: six per pose, one more with the focal scale.
     pub(super) n: usize,
+    /// The crossings' rays at the focal scale last asked for ([`Self::rays`]).
+    rays_at: RaysAt,
 }
+
+/// The rays of a layout's crossings at one focal scale (its bits), kept: a
+/// Levenberg–Marquardt step asked for them four times and more (normal equations,
+/// gauge, and each trial's renormalisation and cost), each time undistorting every
+/// crossing, while the focal scale moves only when it is estimated.
+type RaysAt = std::sync::Mutex<Option<(u64, std::sync::Arc<Vec<Option<Ray>>>)>>;
 
 /// Floor of every spread, relative to a typical value of its kind: below it the data
 /// would be exact to rounding and the weights unbounded.
@@ -259,6 +267,7 @@ impl<'a> Layout<'a> {
             params,
             triples,
             n,
+            rays_at: RaysAt::default(),
         }
     }
 
@@ -269,6 +278,7 @@ impl<'a> Layout<'a> {
             params: self.params,
             triples: Vec::new(),
             n: self.n,
+            rays_at: RaysAt::default(),
         }
     }
 
@@ -315,12 +325,23 @@ impl<'a> Layout<'a> {
         )
     }
 
-    pub(super) fn rays(&self, lambda: f64) -> Vec<Option<Ray>> {
-        self.evidence
-            .crossings
-            .iter()
-            .map(|c| self.evidence.rays.ray(c.u, lambda))
-            .collect()
+    /// The crossings' rays at focal scale `lambda` (the same bits as made afresh).
+    pub(super) fn rays(&self, lambda: f64) -> std::sync::Arc<Vec<Option<Ray>>> {
+        let mut kept = self.rays_at.lock().unwrap_or_else(|e| e.into_inner());
+        match &*kept {
+            Some((bits, rays)) if *bits == lambda.to_bits() => rays.clone(),
+            _ => {
+                let rays: std::sync::Arc<Vec<Option<Ray>>> = std::sync::Arc::new(
+                    self.evidence
+                        .crossings
+                        .iter()
+                        .map(|c| self.evidence.rays.ray(c.u, lambda))
+                        .collect(),
+                );
+                *kept = Some((lambda.to_bits(), rays.clone()));
+                rays
+            }
+        }
     }
 
     fn motion_terms(&self, state: &State, t: &Triple) -> (MotionTerm, MotionTerm) {

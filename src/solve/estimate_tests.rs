@@ -966,3 +966,23 @@ fn the_predicted_decrease_is_exact_for_a_linear_residual() {
         "predicted {predicted}, actual {actual}"
     );
 }
+
+/// The rays a layout keeps are those made afresh at whatever focal scale is asked for,
+/// back and forth.
+#[test]
+fn a_layouts_rays_are_made_afresh_at_each_focal_scale() {
+    let scan = path_scan(&PathSpec::default());
+    let ev = evidence_of(&scan, 0.0, 1, |_, _| true);
+    let params = EstimateParams::default();
+    let layout = super::estimate::Layout::new(&ev, &params);
+    let fresh = |lambda: f64| -> Vec<Option<Ray>> {
+        ev.crossings
+            .iter()
+            .map(|c| ev.rays.ray(c.u, lambda))
+            .collect()
+    };
+    for lambda in [1.0, 1.1, 1.0, 0.9, 0.9] {
+        assert_eq!(*layout.rays(lambda), fresh(lambda), "at {lambda}");
+    }
+    assert_ne!(fresh(1.0), fresh(1.1), "the scales must give other rays");
+}

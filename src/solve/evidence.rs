@@ -54,7 +54,7 @@ pub struct RayModel {
 }
 
 /// A ray `(x, y, 1)` and its derivative with respect to the focal scale.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Ray {
     pub r: V3,
     pub dr_dscale: V3,
