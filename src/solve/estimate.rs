@@ -32,7 +32,7 @@
 //! # Spreads and uncertainty
 //! The spreads are measured, not set: after the minimisation, each kind of residual's
 //! spread is the robust spread of its residuals standardised by their own redundancy
-//! (`|e| / √(1 − w h)`, `h` the leverage from the covariance; see [`measured_spreads`]),
+//! (`|e| / √(1 − w h)`, `h` the leverage from the covariance; see [`super::spreads`]),
 //! and the minimisation is repeated until they settle.
 //! The covariance of the poses is the inverse of the crossings' information at the
 //! estimate, the motion terms left out ([`evidence_covariance`] says why); each pose
@@ -45,6 +45,8 @@ use nalgebra::{SMatrix, SVector};
 use super::dense::{Cholesky, DenseThreads};
 use super::evidence::{CrossingClass, Evidence, Ray};
 use super::pose::{CrossPose, POSE_DOF};
+pub(super) use super::spreads::MIN_REDUNDANCY;
+use super::spreads::{measured_spreads, relative_change};
 use super::terms::{self, Loss, MotionTerm};
 use super::SolveError;
 
@@ -203,8 +205,8 @@ pub struct Start {
 
 /// Three consecutive poses and their frame steps.
 #[derive(Clone, Copy, Debug)]
-struct Triple {
-    poses: [u32; 3],
+pub(super) struct Triple {
+    pub(super) poses: [u32; 3],
     h: [f64; 2],
 }
 
@@ -212,7 +214,7 @@ struct Triple {
 pub(super) struct Layout<'a> {
     pub(super) evidence: &'a Evidence,
     params: &'a EstimateParams,
-    triples: Vec<Triple>,
+    pub(super) triples: Vec<Triple>,
     /// Number of unknowns: six per pose, one more with the focal scale.
     pub(super) n: usize,
     /// The crossings' rays at the focal scale last asked for ([`Self::rays`]).
@@ -225,12 +227,6 @@ pub(super) struct Layout<'a> {
 /// crossing, while the focal scale moves only when it is estimated.
 type RaysAt = std::sync::Mutex<Option<(u64, std::sync::Arc<Vec<Option<Ray>>>)>>;
 
-/// Floor of every spread, relative to a typical value of its kind: below it the data
-/// would be exact to rounding and the weights unbounded.
-const SPREAD_FLOOR: f64 = 1e-6;
-/// A residual whose redundancy `1 − w h` is below this is absorbed by the estimate and
-/// says nothing of its spread.
-pub(super) const MIN_REDUNDANCY: f64 = 0.05;
 /// Relative change of the spreads below which the rounds stop.
 const SPREAD_SETTLED: f64 = 0.05;
 /// The minimisation ends when what is left to gain is under this, in units of the
@@ -344,7 +340,7 @@ impl<'a> Layout<'a> {
         }
     }
 
-    fn motion_terms(&self, state: &State, t: &Triple) -> (MotionTerm, MotionTerm) {
+    pub(super) fn motion_terms(&self, state: &State, t: &Triple) -> (MotionTerm, MotionTerm) {
         let p = t.poses.map(|i| &state.poses[i as usize]);
         (
             terms::centre_motion(p, t.h[0], t.h[1]),
@@ -356,7 +352,7 @@ impl<'a> Layout<'a> {
         Loss::Cauchy(self.params.crossing_loss)
     }
 
-    fn motion_loss(&self) -> Loss {
+    pub(super) fn motion_loss(&self) -> Loss {
         Loss::Huber(self.params.motion_loss)
     }
 
@@ -742,131 +738,6 @@ pub(super) fn information_factor(
 /// not fix). On a sweep whose crossings fix every pose the two agree.
 fn evidence_covariance(layout: &Layout, state: &State, spreads: &Spreads) -> Option<Mat<f64>> {
     covariance(&layout.crossings_only(), state, spreads)
-}
-
-/// `j Σ jᵀ` over the unknowns `idx`.
-fn quadratic_form(cov: &Mat<f64>, idx: &[usize], j: &[f64]) -> f64 {
-    let mut s = 0.0;
-    for (a, &ia) in idx.iter().enumerate() {
-        let col = cov.col_as_slice(ia);
-        let mut t = 0.0;
-        for (b, &ib) in idx.iter().enumerate() {
-            t += col[ib] * j[b];
-        }
-        s += j[a] * t;
-    }
-    s
-}
-
-/// The spreads the residuals at `state` show, per kind (crossings strong, faint; centre;
-/// aim; roll): the median of each residual's size standardised by its own redundancy,
-/// `|e| / √(1 − w h)` (`w` its robust weight, `h = jΣjᵀ/σ²` its leverage, so that a
-/// residual the estimate absorbs, such as the motion term of a centre nothing else
-/// places, does not read as small), times 1.4826, over the residuals not absorbed
-/// (`1 − w h` over 0.05). A median, not the weighted mean square of variance component
-/// estimation: under Cauchy's weights that shrinks the spread each round (the weights
-/// take a share of the Gaussian core too), and the shrunken spread raises the share of
-/// outliers, so the scan settled where it started. Also returns each kind's redundancy
-/// `Σ (w − w h)` and the number of residuals measured.
-fn measured_spreads(
-    layout: &Layout,
-    state: &State,
-    spreads: &Spreads,
-    cov: &Mat<f64>,
-) -> (Spreads, [f64; 5]) {
-    let mut standardised: [Vec<f64>; 5] = Default::default();
-    let mut redundancy = [0.0; 5];
-    let mut add = |kind: usize, e: f64, w: f64, h: f64| {
-        let r = 1.0 - w * h;
-        redundancy[kind] += w * r;
-        if r > MIN_REDUNDANCY {
-            standardised[kind].push(e.abs() / r.sqrt());
-        }
-    };
-    let ev = layout.evidence;
-    let rays = layout.rays(state.focal_scale);
-    let fi = layout.focal_index();
-    let closs = layout.crossing_loss();
-    for k in 0..ev.crossings.len() {
-        let Some(t) = layout.crossing(state, k, &rays) else {
-            continue;
-        };
-        let c = &ev.crossings[k];
-        let sigma = spreads.crossing_px[c.class as usize];
-        let w = closs.weight(t.e / sigma);
-        let (pa, pb) = (
-            ev.planes[c.a as usize].pose as usize * POSE_DOF,
-            ev.planes[c.b as usize].pose as usize * POSE_DOF,
-        );
-        let mut idx: Vec<usize> = (pa..pa + 6).chain(pb..pb + 6).collect();
-        let mut j: Vec<f64> = t.ja.iter().chain(&t.jb).copied().collect();
-        if let Some(f) = fi {
-            idx.push(f);
-            j.push(t.j_scale);
-        }
-        let h = quadratic_form(cov, &idx, &j) / (sigma * sigma);
-        add(c.class as usize, t.e, w, h);
-    }
-    let mloss = layout.motion_loss();
-    for t in &layout.triples {
-        let (cm, rm) = layout.motion_terms(state, t);
-        let wc = mloss.weight(cm.r.norm() / spreads.centre);
-        let wa = mloss.weight(rm.r.xy().norm() / spreads.aim_rad);
-        let wr = mloss.weight(rm.r.z / spreads.roll_rad);
-        for row in 0..3 {
-            let mut idx = [0usize; 9];
-            let mut jc = [0.0; 9];
-            let mut jr = [0.0; 9];
-            for (s, &p) in t.poses.iter().enumerate() {
-                for col in 0..3 {
-                    idx[3 * s + col] = p as usize * POSE_DOF + col;
-                    jr[3 * s + col] = rm.j[s][(row, col)];
-                    jc[3 * s + col] = cm.j[s][(row, col)];
-                }
-            }
-            let cidx = idx.map(|i| i + 3);
-            let hc = quadratic_form(cov, &cidx, &jc) / spreads.centre.powi(2);
-            add(2, cm.r[row], wc, hc);
-            let (kind, w, sigma) = if row == 2 {
-                (4, wr, spreads.roll_rad)
-            } else {
-                (3, wa, spreads.aim_rad)
-            };
-            let hr = quadratic_form(cov, &idx, &jr) / (sigma * sigma);
-            add(kind, rm.r[row], w, hr);
-        }
-    }
-    let mut pick = |kind: usize, old: f64| {
-        let values = std::mem::take(&mut standardised[kind]);
-        match super::median(values) {
-            Some(m) if m > 0.0 => (super::MAD_TO_SIGMA * m).max(SPREAD_FLOOR * old),
-            _ => old,
-        }
-    };
-    let next = Spreads {
-        crossing_px: [
-            pick(0, spreads.crossing_px[0]),
-            pick(1, spreads.crossing_px[1]),
-        ],
-        centre: pick(2, spreads.centre),
-        aim_rad: pick(3, spreads.aim_rad),
-        roll_rad: pick(4, spreads.roll_rad),
-    };
-    (next, redundancy)
-}
-
-fn relative_change(a: &Spreads, b: &Spreads) -> f64 {
-    let pairs = [
-        (a.crossing_px[0], b.crossing_px[0]),
-        (a.crossing_px[1], b.crossing_px[1]),
-        (a.centre, b.centre),
-        (a.aim_rad, b.aim_rad),
-        (a.roll_rad, b.roll_rad),
-    ];
-    pairs
-        .iter()
-        .map(|(x, y)| ((x - y) / x.max(f64::MIN_POSITIVE)).abs())
-        .fold(0.0, f64::max)
 }
 
 /// Minimises from `start`, measures the spreads, and repeats until they settle; then the

@@ -56,6 +56,7 @@ pub mod pose;
 mod scatter;
 mod screen;
 pub mod seed;
+mod spreads;
 pub mod subset;
 pub mod subspace;
 pub mod synthetic;
