@@ -437,15 +437,22 @@ impl LocalQuadratic {
     }
 }
 
-/// Distance from `p` to the segment `a`–`b`.
-pub fn point_segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+/// Where `p` projects onto the segment `a`–`b`, as the fraction of the way from `a`
+/// (clamped to the segment; 0 on a segment of no length).
+pub fn segment_param(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
     let len2 = ex * ex + ey * ey;
-    let t = if len2 > 0.0 {
+    if len2 > 0.0 {
         (((p[0] - a[0]) * ex + (p[1] - a[1]) * ey) / len2).clamp(0.0, 1.0)
     } else {
         0.0
-    };
+    }
+}
+
+/// Distance from `p` to the segment `a`–`b`.
+pub fn point_segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+    let t = segment_param(p, a, b);
+    let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
     (p[0] - a[0] - t * ex).hypot(p[1] - a[1] - t * ey)
 }
 

@@ -681,13 +681,12 @@ pub fn yuyv_row_to_rgb(src: &[u8], dst: &mut [u8]) {
     }
 }
 
-/// Decodes a recorded buffer to RGB: MJPEG (with or without Huffman tables), YUYV
-/// (BT.601, limited range) or packed RGB.
 /// A whole JPEG of `w × h` to RGB: zune-jpeg (the decoder the `image` crate wraps)
 /// called straight. Its size is checked against the header's before the pixels are
-/// allocated, so that a damaged frame that claims 65535x65535 costs nothing. Through `image` each
-/// frame was copied once more, its headers read twice and its pixels decoded into a
-/// buffer of `image`'s: 0.7-1.4 ms more a 1080p frame (of about 11), the same pixels.
+/// allocated, so that a damaged frame that claims 65535x65535 costs nothing. Through
+/// `image` each frame was copied once more, its headers read twice and its pixels
+/// decoded into a buffer of `image`'s: 0.7-1.4 ms more a 1080p frame (of about 11),
+/// the same pixels.
 fn decode_jpeg(jpeg: &[u8], w: usize, h: usize) -> Result<RgbImage, String> {
     use zune_jpeg::zune_core::{bytestream::ZCursor, colorspace::ColorSpace, options};
     let options = options::DecoderOptions::default()
@@ -706,6 +705,8 @@ fn decode_jpeg(jpeg: &[u8], w: usize, h: usize) -> Result<RgbImage, String> {
     RgbImage::from_raw(w as u32, h as u32, out).ok_or_else(|| "size".to_string())
 }
 
+/// Decodes a recorded buffer to RGB: MJPEG (with or without Huffman tables), YUYV
+/// (BT.601, limited range) or packed RGB.
 pub fn decode_rgb(header: &DumpHeader, payload: &[u8]) -> Result<RgbImage, String> {
     let (w, h) = (header.width as usize, header.height as usize);
     match &header.fourcc {

@@ -93,11 +93,8 @@ impl PlaneCurves {
         let points = &self.curves[ci].points[start..=end];
         let guess = match &self.curves[ci].polyline[k..] {
             [a, b, ..] => {
-                let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
-                let len2 = ex * ex + ey * ey;
-                let t = ((u[0] - a[0]) * ex + (u[1] - a[1]) * ey) / len2;
-                // NaN (a segment of no length) becomes 0.
-                (t.clamp(0.0, 1.0) * (end - start) as f64).round() as usize
+                let t = crate::intersect::segment_param(u, *a, *b);
+                (t * (end - start) as f64).round() as usize
             }
             _ => 0,
         };
