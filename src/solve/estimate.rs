@@ -206,7 +206,7 @@ pub struct Start {
 /// Three consecutive poses and their frame steps.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Triple {
-    pub(super) poses: [u32; 3],
+    poses: [u32; 3],
     h: [f64; 2],
 }
 
@@ -444,17 +444,7 @@ impl<'a> Layout<'a> {
             let wa = loss.weight(rm.r.xy().norm() / spreads.aim_rad) / spreads.aim_rad.powi(2);
             let wr = loss.weight(rm.r.z / spreads.roll_rad) / spreads.roll_rad.powi(2);
             for row in 0..3 {
-                let mut idx = [0usize; 9];
-                let mut jc = [0.0; 9];
-                let mut jr = [0.0; 9];
-                for (s, &p) in t.poses.iter().enumerate() {
-                    for col in 0..3 {
-                        let base = p as usize * POSE_DOF;
-                        idx[3 * s + col] = base + col;
-                        jr[3 * s + col] = rm.j[s][(row, col)];
-                        jc[3 * s + col] = cm.j[s][(row, col)];
-                    }
-                }
+                let (idx, jr, jc) = motion_row(t, &cm, &rm, row);
                 let w_rot = if row == 2 { wr } else { wa };
                 accumulate(&mut h, &mut g, &idx, &jr, w_rot, rm.r[row]);
                 let cidx = idx.map(|i| i + 3);
@@ -463,6 +453,28 @@ impl<'a> Layout<'a> {
         }
         (h, g, cost)
     }
+}
+
+/// Row `row` of triple `t`'s motion terms over the unknowns: the indices of its three
+/// poses' rotation unknowns, the rotation term's derivatives there, and the centre
+/// term's derivatives (whose unknowns are each index plus 3).
+pub(super) fn motion_row(
+    t: &Triple,
+    cm: &MotionTerm,
+    rm: &MotionTerm,
+    row: usize,
+) -> ([usize; 9], [f64; 9], [f64; 9]) {
+    let mut idx = [0usize; 9];
+    let mut jr = [0.0; 9];
+    let mut jc = [0.0; 9];
+    for (s, &p) in t.poses.iter().enumerate() {
+        for col in 0..3 {
+            idx[3 * s + col] = p as usize * POSE_DOF + col;
+            jr[3 * s + col] = rm.j[s][(row, col)];
+            jc[3 * s + col] = cm.j[s][(row, col)];
+        }
+    }
+    (idx, jr, jc)
 }
 
 /// `H += w j jᵀ` (its lower triangle, row ≥ column) and `g += w j e` over the unknowns

@@ -6,7 +6,7 @@
 
 use faer::Mat;
 
-use super::estimate::{Layout, Spreads, State};
+use super::estimate::{motion_row, Layout, Spreads, State};
 use super::pose::POSE_DOF;
 
 /// Floor of every spread, relative to a typical value of its kind: below it the data
@@ -86,16 +86,7 @@ pub(super) fn measured_spreads(
         let wa = mloss.weight(rm.r.xy().norm() / spreads.aim_rad);
         let wr = mloss.weight(rm.r.z / spreads.roll_rad);
         for row in 0..3 {
-            let mut idx = [0usize; 9];
-            let mut jc = [0.0; 9];
-            let mut jr = [0.0; 9];
-            for (s, &p) in t.poses.iter().enumerate() {
-                for col in 0..3 {
-                    idx[3 * s + col] = p as usize * POSE_DOF + col;
-                    jr[3 * s + col] = rm.j[s][(row, col)];
-                    jc[3 * s + col] = cm.j[s][(row, col)];
-                }
-            }
+            let (idx, jr, jc) = motion_row(t, &cm, &rm, row);
             let cidx = idx.map(|i| i + 3);
             let hc = quadratic_form(cov, &cidx, &jc) / spreads.centre.powi(2);
             add(2, cm.r[row], wc, hc);
