@@ -396,9 +396,30 @@ impl<'a> Layout<'a> {
         state: &State,
         spreads: &Spreads,
     ) -> (Mat<f64>, Vec<f64>, f64) {
+        let mut h = Mat::<f64>::zeros(self.n, self.n);
+        let mut g = vec![0.0; self.n];
+        let cost = self.normal_equations_into(state, spreads, &mut h, &mut g);
+        (h, g, cost)
+    }
+
+    /// [`Self::normal_equations`] into `h` and `g`, resized to the unknowns and zeroed
+    /// first, so that the minimisation's steps reuse one matrix; the cost.
+    pub(super) fn normal_equations_into(
+        &self,
+        state: &State,
+        spreads: &Spreads,
+        h: &mut Mat<f64>,
+        g: &mut Vec<f64>,
+    ) -> f64 {
         let n = self.n;
-        let mut h = Mat::<f64>::zeros(n, n);
-        let mut g = vec![0.0; n];
+        if (h.nrows(), h.ncols()) == (n, n) {
+            h.fill(0.0);
+        } else {
+            *h = Mat::<f64>::zeros(n, n);
+        }
+        g.clear();
+        g.resize(n, 0.0);
+        let (h, g) = (&mut *h, g.as_mut_slice());
         let mut crossing_cost = terms::CostSum::new(self.crossing_loss());
         let rays = self.rays(state.focal_scale);
         let fi = self.focal_index();
@@ -432,7 +453,7 @@ impl<'a> Layout<'a> {
                 }
                 None => 12,
             };
-            accumulate(&mut h, &mut g, &idx[..len], &jac[..len], w, t.e);
+            accumulate(h, g, &idx[..len], &jac[..len], w, t.e);
         }
         let mut cost = crossing_cost.total();
         for t in &self.triples {
@@ -446,12 +467,12 @@ impl<'a> Layout<'a> {
             for row in 0..3 {
                 let (idx, jr, jc) = motion_row(t, &cm, &rm, row);
                 let w_rot = if row == 2 { wr } else { wa };
-                accumulate(&mut h, &mut g, &idx, &jr, w_rot, rm.r[row]);
+                accumulate(h, g, &idx, &jr, w_rot, rm.r[row]);
                 let cidx = idx.map(|i| i + 3);
-                accumulate(&mut h, &mut g, &cidx, &jc, wc, cm.r[row]);
+                accumulate(h, g, &cidx, &jc, wc, cm.r[row]);
             }
         }
-        (h, g, cost)
+        cost
     }
 }
 
@@ -626,10 +647,17 @@ fn regularise(h: &mut Mat<f64>, gauge: &[f64]) {
 }
 
 /// Solves `(H + μ diag H) δ = −g`; `None` if it does not factor.
-fn damped_step(h: &Mat<f64>, g: &[f64], mu: f64, threads: DenseThreads) -> Option<Vec<f64>> {
-    let llt = Cholesky::of_lower(h, mu, threads)?;
+fn damped_step(
+    h: &Mat<f64>,
+    g: &[f64],
+    mu: f64,
+    threads: DenseThreads,
+    storage: &mut Option<Mat<f64>>,
+) -> Option<Vec<f64>> {
+    let llt = Cholesky::of_lower_in(h, mu, threads, storage)?;
     let minus_g: Vec<f64> = g.iter().map(|x| -x).collect();
     let out = llt.solve(&minus_g);
+    *storage = Some(llt.into_storage());
     out.iter().all(|x| x.is_finite()).then_some(out)
 }
 
@@ -662,17 +690,19 @@ fn minimise(layout: &Layout, mut state: State, spreads: &Spreads) -> (State, f64
     let mut steps = 0;
     let (mut current, rays_now) = layout.cost_and_rays(&state, spreads);
     let mut last_decrease = f64::INFINITY;
+    // One matrix each for the normal equations and their factor, reused by every step.
+    let (mut h, mut g, mut factor) = (Mat::<f64>::zeros(0, 0), Vec::new(), None);
     for _ in 0..layout.params.max_iterations {
         if layout.params.cancel.is_cancelled() {
             break;
         }
-        let (mut h, g, _) = layout.normal_equations(&state, spreads);
+        layout.normal_equations_into(&state, spreads, &mut h, &mut g);
         let (_, gauge) = layout.gauge(&state, &layout.rays(state.focal_scale));
         regularise(&mut h, &gauge);
         let mut accepted = None;
         let mut raise = 2.0;
         for _ in 0..10 {
-            if let Some(step) = damped_step(&h, &g, mu, layout.params.threads) {
+            if let Some(step) = damped_step(&h, &g, mu, layout.params.threads, &mut factor) {
                 let mut trial = state.moved(&step, focal);
                 layout.renormalise(&mut trial, target);
                 // A focal scale at which some crossing's ray cannot be formed drops that
