@@ -218,6 +218,8 @@ pub struct CheckpointWriter {
     record: Vec<u8>,
     interval: Duration,
     last_sync: Instant,
+    /// Frames appended since the last sync.
+    unsynced: u64,
     pub frames: u64,
 }
 
@@ -395,6 +397,7 @@ impl CheckpointWriter {
             record: Vec::new(),
             interval,
             last_sync: Instant::now(),
+            unsynced: 0,
             frames: 0,
         })
     }
@@ -417,7 +420,16 @@ impl CheckpointWriter {
         encode(frame, &mut self.record);
         self.file.write_all(&self.record).map_err(io(&self.path))?;
         self.frames += 1;
-        if self.last_sync.elapsed() >= self.interval {
+        self.unsynced += 1;
+        self.sync_if_due()
+    }
+
+    /// [`Self::sync`] when frames were appended since the last one and `interval` has
+    /// passed: called with each frame, and by the solver thread while it waits for
+    /// frames, so that frames appended just before a pause (a burst after the warm-up,
+    /// a camera that stalls) do not wait in the buffer for the next frame.
+    pub fn sync_if_due(&mut self) -> Result<(), CheckpointError> {
+        if self.unsynced > 0 && self.last_sync.elapsed() >= self.interval {
             self.sync()?;
         }
         Ok(())
@@ -427,6 +439,7 @@ impl CheckpointWriter {
         self.file.flush().map_err(io(&self.path))?;
         self.file.get_ref().sync_data().map_err(io(&self.path))?;
         self.last_sync = Instant::now();
+        self.unsynced = 0;
         Ok(())
     }
 }
@@ -466,6 +479,13 @@ impl Checkpoint {
     pub fn sync(&mut self) {
         if self.error.is_none() {
             let result = self.writer.sync();
+            self.keep(result);
+        }
+    }
+
+    pub fn sync_if_due(&mut self) {
+        if self.error.is_none() {
+            let result = self.writer.sync_if_due();
             self.keep(result);
         }
     }
@@ -548,6 +568,33 @@ mod tests {
             resume(dir.path(), 640, 480),
             Err(CheckpointError::Size { .. })
         ));
+    }
+
+    /// Frames appended within the interval of the last sync reach the file once the
+    /// interval has passed and the solver thread asks, with no frame after them.
+    #[test]
+    fn frames_before_a_pause_are_written_when_the_interval_passes() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        // Long enough that the appends and first checks surely fall within it.
+        let interval = Duration::from_millis(1000);
+        let mut w = CheckpointWriter::open(dir.path(), 64, 48, interval).expect("open");
+        w.sync().expect("sync");
+        for i in 0..4 {
+            w.append(&frame(i)).expect("append");
+        }
+        let on_disk = || {
+            let bytes = std::fs::read(dir.path().join("curves.log")).expect("read");
+            read_log(&bytes, Path::new("curves.log"), 64, 48)
+                .expect("log")
+                .frames
+                .len()
+        };
+        assert_eq!(on_disk(), 0, "appended within the interval: still buffered");
+        w.sync_if_due().expect("sync");
+        assert_eq!(on_disk(), 0, "not due yet");
+        std::thread::sleep(interval + Duration::from_millis(100));
+        w.sync_if_due().expect("sync");
+        assert_eq!(on_disk(), 4);
     }
 
     #[test]

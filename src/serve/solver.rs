@@ -62,7 +62,10 @@ impl Live<'_> {
                 Ok(e) => {
                     pending.insert(e.meta.index, e);
                 }
-                Err(RecvTimeoutError::Timeout) => continue,
+                Err(RecvTimeoutError::Timeout) => {
+                    checkpoint.sync_if_due();
+                    continue;
+                }
                 Err(RecvTimeoutError::Disconnected) => {
                     if !pending.is_empty() {
                         tracing::warn!(
