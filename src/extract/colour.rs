@@ -227,11 +227,25 @@ impl ColourLut {
     /// of 10–20 grey levels reads orange, outside red's hues.
     #[inline]
     pub fn response(&self, laser: u8, dr: u8, dg: u8, db: u8) -> (u8, bool) {
+        self.response_of_class(laser, dr, dg, db, self.classify(dr, dg, db))
+    }
+
+    /// [`Self::response`] given the difference's class (`classify(dr, dg, db)`), so that
+    /// a caller that has it does not look it up again.
+    #[inline]
+    fn response_of_class(
+        &self,
+        laser: u8,
+        dr: u8,
+        dg: u8,
+        db: u8,
+        class: Option<u8>,
+    ) -> (u8, bool) {
         let [r, g, b] = self.channels[laser as usize];
         let own = (dr * u8::from(r))
             .max(dg * u8::from(g))
             .max(db * u8::from(b));
-        match self.classify(dr, dg, db) {
+        match class {
             None => (own, false),
             Some(c) if c == laser || c == Class::White as u8 => (own, false),
             Some(c) if c == Class::Other as u8 => {
@@ -268,6 +282,20 @@ impl ColourLut {
     ///   its own channel has beyond the others, nothing for a grey.
     #[inline]
     pub fn response_raw(&self, laser: u8, d: [u8; 3], raw: &[u8]) -> (u8, bool) {
+        self.response_raw_with(laser, d, raw, self.own_clipped(laser, raw))
+    }
+
+    /// [`Self::response_raw`] given `own_clipped(laser, raw)`. Each pixel's class is
+    /// looked up once here (the table is large enough that a look-up is a cache miss
+    /// as often as not).
+    #[inline]
+    fn response_raw_with(
+        &self,
+        laser: u8,
+        d: [u8; 3],
+        raw: &[u8],
+        own_clipped: bool,
+    ) -> (u8, bool) {
         let [r, g, b] = self.channels[laser as usize];
         let own = (d[0] * u8::from(r))
             .max(d[1] * u8::from(g))
@@ -275,16 +303,15 @@ impl ColourLut {
         let foreign = (d[0] * u8::from(!r))
             .max(d[1] * u8::from(!g))
             .max(d[2] * u8::from(!b));
-        if self.own_clipped(laser, raw) {
+        if own_clipped {
             return (own.saturating_add(foreign), false);
         }
         let white = Class::White as u8;
-        if self.classify(d[0], d[1], d[2]) == Some(white)
-            && self.classify(raw[0], raw[1], raw[2]) == Some(white)
-        {
+        let class = self.classify(d[0], d[1], d[2]);
+        if class == Some(white) && self.classify(raw[0], raw[1], raw[2]) == Some(white) {
             return (own.saturating_sub(foreign), false);
         }
-        self.response(laser, d[0], d[1], d[2])
+        self.response_of_class(laser, d[0], d[1], d[2], class)
     }
 
     /// [`Self::response_raw`] against a local background: the excess there still
@@ -294,12 +321,25 @@ impl ColourLut {
     /// pale texture gives nothing), except where the own channel is clipped.
     #[inline]
     pub fn response_local(&self, laser: u8, d: [u8; 3], raw: &[u8]) -> (u8, bool) {
-        let (r, masked) = self.response_raw(laser, d, raw);
+        self.response_local_with(laser, d, raw, self.own_clipped(laser, raw))
+    }
+
+    /// [`Self::response_local`] given `own_clipped(laser, raw)`, which the detector's
+    /// filler has already worked out for its mask.
+    #[inline]
+    pub fn response_local_with(
+        &self,
+        laser: u8,
+        d: [u8; 3],
+        raw: &[u8],
+        own_clipped: bool,
+    ) -> (u8, bool) {
+        let (r, masked) = self.response_raw_with(laser, d, raw, own_clipped);
         // Clipped in every channel is white in the raw frame and, over a local
         // background, in the excess too: a lamp or a specular spot as much as a
         // stripe's core, and only the latter has a laser-coloured flank.
         let all_clipped = raw[..3].iter().all(|&v| v >= CLIP_LEVEL);
-        if masked || (self.own_clipped(laser, raw) && !all_clipped) {
+        if masked || (own_clipped && !all_clipped) {
             return (r, masked);
         }
         let [cr, cg, cb] = self.channels[laser as usize];

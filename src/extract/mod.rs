@@ -1006,8 +1006,9 @@ fn response_rgb<'a>(
                     f[1].saturating_add(lift[1]).saturating_sub(b[1]),
                     f[2].saturating_add(lift[2]).saturating_sub(b[2]),
                 );
+                let clipped = local && lut.own_clipped(laser, f);
                 let (r, other_laser) = if local {
-                    lut.response_local(laser, [dr, dg, db], f)
+                    lut.response_local_with(laser, [dr, dg, db], f, clipped)
                 } else {
                     // Against a laser-off frame the difference is the laser's
                     // light alone, clipped cores included (a wide clipped top is
@@ -1016,7 +1017,7 @@ fn response_rgb<'a>(
                 };
                 // Bit 1: the own channel clipped, which a flat top may be
                 // (`detect::width::FLAT_RATIO`).
-                *m = u8::from(other_laser) | (u8::from(local && lut.own_clipped(laser, f)) << 1);
+                *m = u8::from(other_laser) | (u8::from(clipped) << 1);
                 *o = r as f32;
             }
             i = end;
