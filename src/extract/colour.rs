@@ -296,13 +296,7 @@ impl ColourLut {
         raw: &[u8],
         own_clipped: bool,
     ) -> (u8, bool) {
-        let [r, g, b] = self.channels[laser as usize];
-        let own = (d[0] * u8::from(r))
-            .max(d[1] * u8::from(g))
-            .max(d[2] * u8::from(b));
-        let foreign = (d[0] * u8::from(!r))
-            .max(d[1] * u8::from(!g))
-            .max(d[2] * u8::from(!b));
+        let (own, foreign) = self.own_and_foreign(laser, d);
         if own_clipped {
             return (own.saturating_add(foreign), false);
         }
@@ -342,11 +336,20 @@ impl ColourLut {
         if masked || (own_clipped && !all_clipped) {
             return (r, masked);
         }
-        let [cr, cg, cb] = self.channels[laser as usize];
-        let foreign = (d[0] * u8::from(!cr))
-            .max(d[1] * u8::from(!cg))
-            .max(d[2] * u8::from(!cb));
-        (r.saturating_sub(foreign), false)
+        (r.saturating_sub(self.own_and_foreign(laser, d).1), false)
+    }
+
+    /// The largest of `d`'s channels that are laser `laser`'s, and of those that are not.
+    #[inline]
+    fn own_and_foreign(&self, laser: u8, d: [u8; 3]) -> (u8, u8) {
+        let [r, g, b] = self.channels[laser as usize];
+        let own = (d[0] * u8::from(r))
+            .max(d[1] * u8::from(g))
+            .max(d[2] * u8::from(b));
+        let foreign = (d[0] * u8::from(!r))
+            .max(d[1] * u8::from(!g))
+            .max(d[2] * u8::from(!b));
+        (own, foreign)
     }
 }
 

@@ -254,6 +254,23 @@ mod tests {
         ext(&ext(img, u8::min, 255), u8::max, 0)
     }
 
+    /// The local background of `img` at radius `r` is its brute-force opening plus the
+    /// bias measured against it.
+    fn assert_is_the_opening(img: &RgbImage, r: usize) {
+        let mut lb = LocalBackground::new(r);
+        let mut out = RgbImage::new(1, 1);
+        lb.estimate_into(img, &mut out);
+        let reference = opening_reference(img, r);
+        let bias = noise_bias(img.as_raw(), reference.as_raw());
+        let expected: Vec<u8> = reference
+            .as_raw()
+            .chunks_exact(3)
+            .flat_map(|p| [0, 1, 2].map(|c| p[c].saturating_add(bias[c])))
+            .collect();
+        let (w, h) = img.dimensions();
+        assert_eq!(out.as_raw(), &expected, "{w}x{h}, radius {r}");
+    }
+
     /// Heights about the column passes' blocks of `2r + 1` rows (shorter than one
     /// block, one, two and a bit), so that every case of a window's two ends is met.
     #[test]
@@ -272,17 +289,7 @@ mod tests {
                 image::Rgb([v as u8, (v * 7 % 256) as u8, (255 - v) as u8])
             });
             for r in [1, 3, 8, 16] {
-                let mut lb = LocalBackground::new(r);
-                let mut out = RgbImage::new(1, 1);
-                lb.estimate_into(&img, &mut out);
-                let reference = opening_reference(&img, r);
-                let bias = noise_bias(img.as_raw(), reference.as_raw());
-                let expected: Vec<u8> = reference
-                    .as_raw()
-                    .chunks_exact(3)
-                    .flat_map(|p| [0, 1, 2].map(|c| p[c].saturating_add(bias[c])))
-                    .collect();
-                assert_eq!(out.as_raw(), &expected, "{w}x{h}, radius {r}");
+                assert_is_the_opening(&img, r);
             }
         }
     }
@@ -300,17 +307,7 @@ mod tests {
             image::Rgb([base + stripe, base, (base / 2) + (x as u8)])
         });
         for r in [1, 2, 3, 4, 8] {
-            let mut lb = LocalBackground::new(r);
-            let mut out = RgbImage::new(1, 1);
-            lb.estimate_into(&img, &mut out);
-            let reference = opening_reference(&img, r);
-            let bias = noise_bias(img.as_raw(), reference.as_raw());
-            let expected: Vec<u8> = reference
-                .as_raw()
-                .chunks_exact(3)
-                .flat_map(|p| [0, 1, 2].map(|c| p[c].saturating_add(bias[c])))
-                .collect();
-            assert_eq!(out.as_raw(), &expected, "radius {r}");
+            assert_is_the_opening(&img, r);
         }
     }
 }
