@@ -476,7 +476,7 @@ pub struct Extractor {
     /// Per ridge point of the detector (by index, since its last `detect`): its
     /// undistorted normalised coordinates, once worked out. Each laser's points are
     /// linked once per follow round and once more at the end, and an undistortion is a
-    /// Newton iteration (10-17 % of the extraction's time against a local background).
+    /// Newton iteration (kept, a dive frame's extraction went from 8.8 to 8.3 ms).
     normalised: Vec<Normalised>,
     stats: ExtractStats,
     /// The background in YUV and the scratch frame of [`Self::extract_yuyv`].
