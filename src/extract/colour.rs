@@ -285,9 +285,8 @@ impl ColourLut {
         self.response_raw_with(laser, d, raw, self.own_clipped(laser, raw))
     }
 
-    /// [`Self::response_raw`] given `own_clipped(laser, raw)`. Each pixel's class is
-    /// looked up once here (the table is large enough that a look-up is a cache miss
-    /// as often as not).
+    /// [`Self::response_raw`] given `own_clipped(laser, raw)`. The difference's class
+    /// is looked up once here and handed on (the local response looked it up twice).
     #[inline]
     fn response_raw_with(
         &self,
