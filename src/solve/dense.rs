@@ -64,9 +64,9 @@ impl Cholesky {
 
     /// [`Self::of_lower`] in `storage`'s matrix where it has `a`'s size, which it takes
     /// (a factor's [`Self::into_storage`] gives it back). The joint estimate factors a
-    /// system of up to ~2,400 unknowns at every damped step; a new matrix of that size
-    /// is fresh pages from the kernel, each faulted in and zeroed (9 % of the dive's
-    /// solve, with the normal equations' own).
+    /// system of up to ~1,800 unknowns (26 MB) at every damped step; a new matrix of
+    /// that size is fresh pages from the kernel, each faulted in and zeroed (9 % of the
+    /// 1,800-frame dive's solve samples, with the normal equations' own).
     pub(super) fn of_lower_in(
         a: &Mat<f64>,
         damping: f64,
