@@ -272,29 +272,20 @@ impl ColourLut {
         (r && raw[0] >= CLIP_LEVEL) || (g && raw[1] >= CLIP_LEVEL) || (b && raw[2] >= CLIP_LEVEL)
     }
 
-    /// [`Self::response`] with the raw pixel `raw` the difference `d` came from:
-    /// - where the laser's own channel is clipped in `raw`, the light it adds is lost
-    ///   there, and the other channels still carry its core (the sensor's crosstalk,
-    ///   the halo's gradient): the response is the own channel plus the largest other
-    ///   one, which keeps rising to the centre;
+    /// [`Self::response`] with the raw pixel `raw` the difference `d` came from, and
+    /// whether laser `laser`'s own channel is clipped there ([`Self::own_clipped`], which
+    /// the caller has worked out for its mask):
+    /// - where it is clipped, the light the laser adds is lost in that channel, and the
+    ///   other channels still carry its core (the sensor's crosstalk, the halo's
+    ///   gradient): the response is the own channel plus the largest other one, which
+    ///   keeps rising to the centre;
     /// - a pixel white in `raw` and white in its difference is not laser light (a lamp,
     ///   a white rim, a white square against a darker background): it keeps only what
     ///   its own channel has beyond the others, nothing for a grey.
+    ///
+    /// The difference's class is looked up once and handed on.
     #[inline]
-    pub fn response_raw(&self, laser: u8, d: [u8; 3], raw: &[u8]) -> (u8, bool) {
-        self.response_raw_with(laser, d, raw, self.own_clipped(laser, raw))
-    }
-
-    /// [`Self::response_raw`] given `own_clipped(laser, raw)`. The difference's class
-    /// is looked up once here and handed on (the local response looked it up twice).
-    #[inline]
-    fn response_raw_with(
-        &self,
-        laser: u8,
-        d: [u8; 3],
-        raw: &[u8],
-        own_clipped: bool,
-    ) -> (u8, bool) {
+    pub fn response_raw(&self, laser: u8, d: [u8; 3], raw: &[u8], own_clipped: bool) -> (u8, bool) {
         let (own, foreign) = self.own_and_foreign(laser, d);
         if own_clipped {
             return (own.saturating_add(foreign), false);
@@ -311,23 +302,17 @@ impl ColourLut {
     /// holds the surface's texture, in the surface's colour, where a laser-off frame
     /// would have taken it out. So the response is only what the laser's own channel
     /// has beyond the largest other one (a laser is nearly monochrome; a grey or
-    /// pale texture gives nothing), except where the own channel is clipped.
+    /// pale texture gives nothing), except where the own channel is clipped
+    /// (`own_clipped`, as for [`Self::response_raw`]).
     #[inline]
-    pub fn response_local(&self, laser: u8, d: [u8; 3], raw: &[u8]) -> (u8, bool) {
-        self.response_local_with(laser, d, raw, self.own_clipped(laser, raw))
-    }
-
-    /// [`Self::response_local`] given `own_clipped(laser, raw)`, which the detector's
-    /// filler has already worked out for its mask.
-    #[inline]
-    pub fn response_local_with(
+    pub fn response_local(
         &self,
         laser: u8,
         d: [u8; 3],
         raw: &[u8],
         own_clipped: bool,
     ) -> (u8, bool) {
-        let (r, masked) = self.response_raw_with(laser, d, raw, own_clipped);
+        let (r, masked) = self.response_raw(laser, d, raw, own_clipped);
         // Clipped in every channel is white in the raw frame and, over a local
         // background, in the excess too: a lamp or a specular spot as much as a
         // stripe's core, and only the latter has a laser-coloured flank.

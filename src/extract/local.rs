@@ -7,12 +7,12 @@
 //! in three comparisons per pixel whatever `r`, along the rows by doubling in
 //! `log₂(2r + 1) + 1`, both over whole rows, which vectorise; the columns block by
 //! block and the rows one at a time, so that the scratch stays in the cache): anything
-//! bright and narrower than the window (a stripe) is taken out, while surfaces, their shading and the steps between them
-//! (a checkerboard's squares, a lit wall's edge) are kept as they are. The opening of a
-//! noisy surface lies below its mean by the noise's extreme over the window; that bias
-//! is measured on the frame (the median of the frame over the opening, per channel)
-//! and added back, so the excess of a bare surface is centred on zero, as it is over a
-//! laser-off frame.
+//! bright and narrower than the window (a stripe) is taken out, while surfaces, their
+//! shading and the steps between them (a checkerboard's squares, a lit wall's edge)
+//! are kept as they are. The opening of a noisy surface lies below its mean by the
+//! noise's extreme over the window; that bias is measured on the frame (the median of
+//! the frame over the opening, per channel) and added back, so the excess of a bare
+//! surface is centred on zero, as it is over a laser-off frame.
 //!
 //! Owns its scratch buffers; knows nothing of colours or lasers.
 

@@ -1008,7 +1008,7 @@ fn response_rgb<'a>(
                 );
                 let clipped = local && lut.own_clipped(laser, f);
                 let (r, other_laser) = if local {
-                    lut.response_local_with(laser, [dr, dg, db], f, clipped)
+                    lut.response_local(laser, [dr, dg, db], f, clipped)
                 } else {
                     // Against a laser-off frame the difference is the laser's
                     // light alone, clipped cores included (a wide clipped top is
