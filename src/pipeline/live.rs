@@ -7,7 +7,6 @@ use image::RgbImage;
 use super::triangulate::{self, CloudOut};
 use super::{is_faint, Fit, Planes, Record};
 use crate::camera::Camera;
-use crate::cloud;
 use crate::config::Config;
 use crate::solve::estimate::EstimateParams;
 use crate::solve::evidence::Evidence;
@@ -21,7 +20,7 @@ impl Record {
     pub fn solve_input(&self, camera: &Camera, config: &Config) -> (Evidence, Vec<Option<u32>>) {
         let curve_crossings = self.curve_crossings();
         let faint = self.faint_curves(config);
-        self.evidence(camera, config, &curve_crossings, &faint)
+        self.evidence(camera, config, curve_crossings, &faint)
     }
 
     /// The cloud of the scan's planes that `calibration` (made on the evidence of the
@@ -46,10 +45,10 @@ impl Record {
         let curve_crossings = self.curve_crossings();
         let faint = self.faint_curves(config);
         let predicted =
-            self.predicted_crossing_px(&curve_crossings, &faint, config, camera.fx.max(camera.fy));
+            self.predicted_crossing_px(curve_crossings, &faint, config, camera.fx.max(camera.fy));
         let fit = Fit::of(calibration, predicted);
         let all = 0..self.planes.len();
-        let out = triangulate::cloud(self, &planes, all, &curve_crossings, &faint, colour, config);
+        let out = triangulate::cloud(self, &planes, all, curve_crossings, &faint, colour, config);
         (out, fit)
     }
 }
@@ -129,11 +128,10 @@ impl Record {
         if first == end || crossings.is_empty() {
             return None;
         }
-        let curve_crossings: Vec<cloud::CurveCrossing> =
-            crossings.clone().map(|k| self.curve_crossing(k)).collect();
+        let curve_crossings = &self.curve_crossings()[crossings.clone()];
         // Faint where it matters: the curves these crossings are of.
         let mut faint = vec![false; self.num_curves()];
-        for cc in &curve_crossings {
+        for cc in curve_crossings {
             for cid in [cc.a, cc.b] {
                 faint[cid as usize] = is_faint(self.curve(cid), config.solve.min_curve_strength);
             }
@@ -146,7 +144,7 @@ impl Record {
         };
         let ours = |q: u32| (first..end).contains(&(q as usize));
         let links: Vec<Link> = crossings
-            .zip(&curve_crossings)
+            .zip(curve_crossings)
             .filter(|(k, _)| self.crossings[*k].sin_angle >= config.solve.min_sin_angle)
             .filter_map(|(k, cc)| {
                 let c = &self.crossings[k];
@@ -188,7 +186,7 @@ impl Record {
             self,
             &planes,
             first..end,
-            &curve_crossings,
+            curve_crossings,
             &faint,
             colour,
             config,

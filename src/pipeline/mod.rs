@@ -14,7 +14,8 @@
 //!    of one plane do not constrain it): an anchor's ([`anchors`]) with every earlier
 //!    curve, any other frame's with the anchors' curves and its own.
 //! 2. [`Scan::refine_crossings`]: crossings found on the simplified polylines move to the
-//!    curves' dense points, each with the precision its two local fits predict.
+//!    curves' dense points, each with the precision its two local fits predict; each is
+//!    then made once as the crossing check takes it (each curve's point nearest it).
 //! 3. [`Scan::evidence`]: the crossings as the estimator sees them: crossings of two
 //!    strong ridges and those of a faint one, each kind weighed by its own measured spread.
 //! 4. [`crate::solve::calibrate`]: every pose of the projector and how well it is known.
@@ -133,6 +134,7 @@ impl Scan {
                 crossings: Vec::new(),
                 curve_ids: Vec::new(),
                 crossing_sigma: Vec::new(),
+                curve_crossings: Vec::new(),
             },
             anchor_index: index.clone(),
             index,
@@ -244,7 +246,8 @@ impl Scan {
     }
 
     /// Refines the crossings found since the last call on the curves' dense points
-    /// (`[intersect] refine_radius_px`), in parallel.
+    /// (`[intersect] refine_radius_px`), in parallel, and makes them as the crossing
+    /// check takes them ([`Record::curve_crossings`]).
     pub fn refine_crossings(&mut self, camera: &Camera, config: &Config) {
         let radius = config.intersect.refine_radius_px / camera.fx.max(camera.fy);
         let planes = &self.record.planes;
@@ -265,6 +268,7 @@ impl Scan {
                 });
         }
         self.refined = self.record.crossings.len();
+        self.record.extend_curve_crossings();
     }
 }
 
@@ -320,9 +324,9 @@ pub fn reconstruct_scan(
     let t = Instant::now();
     let curve_crossings = record.curve_crossings();
     let faint = record.faint_curves(config);
-    let (evidence, plane_index) = record.evidence(camera, config, &curve_crossings, &faint);
+    let (evidence, plane_index) = record.evidence(camera, config, curve_crossings, &faint);
     let predicted_px =
-        record.predicted_crossing_px(&curve_crossings, &faint, config, evidence.focal_px);
+        record.predicted_crossing_px(curve_crossings, &faint, config, evidence.focal_px);
     times.intersect_s = build_s + t.elapsed().as_secs_f64();
     tracing::debug!(
         s = t.elapsed().as_secs_f64(),
@@ -392,7 +396,7 @@ pub fn reconstruct_scan(
         &record,
         &planes,
         0..record.planes.len(),
-        &curve_crossings,
+        curve_crossings,
         &faint,
         colour_source,
         config,

@@ -299,3 +299,53 @@ fn frames_fitted_against_anchors_are_as_exact_as_joint_ones() {
         100.0 * worst
     );
 }
+
+/// The crossings as the crossing check takes them are made once, when refined: after
+/// every frame (live) or every block (offline), they must be what the refined crossings
+/// give at the end, each curve's nearest point and strength at the crossing's refined
+/// position.
+#[test]
+fn crossings_for_the_check_are_made_on_the_refined_crossings() {
+    let camera = camera();
+    let config = Config::default();
+    assert!(
+        config.intersect.refine_radius_px > 0.0,
+        "refinement moves crossings"
+    );
+    let (_, frames) = frames_of(&camera);
+    let fresh = |record: &Record| -> Vec<cloud::CurveCrossing> {
+        (0..record.num_crossings())
+            .map(|k| record.curve_crossing(k))
+            .collect()
+    };
+    let (mut live, mut blocks) = (Scan::new(&camera, &config), Scan::new(&camera, &config));
+    for (i, curves) in frames.iter().enumerate() {
+        live.add_frame(curves.clone());
+        live.refine_crossings(&camera, &config);
+        blocks.add_frame(curves.clone());
+        if i % 7 == 6 {
+            blocks.refine_crossings(&camera, &config);
+        }
+    }
+    blocks.refine_crossings(&camera, &config);
+    let n = live.num_crossings();
+    assert!(n > 100, "{n} crossings");
+    let unrefined: Vec<[f64; 2]> = {
+        let mut raw = Scan::new(&camera, &config);
+        frames.iter().for_each(|c| raw.add_frame(c.clone()));
+        raw.record.crossings.iter().map(|c| c.u).collect()
+    };
+    let moved = (live.record.crossings.iter())
+        .zip(&unrefined)
+        .filter(|(c, u)| c.u != **u)
+        .count();
+    assert!(moved > n / 2, "refinement moved {moved} of {n}");
+    for scan in [&live, &blocks] {
+        let (kept, made) = (scan.record.curve_crossings(), fresh(&scan.record));
+        assert_eq!(kept.len(), made.len());
+        for (k, (a, b)) in kept.iter().zip(&made).enumerate() {
+            assert_eq!((a.a, a.b, a.u, a.at), (b.a, b.b, b.u, b.at), "crossing {k}");
+            assert_eq!(a.strength, b.strength, "crossing {k}");
+        }
+    }
+}
