@@ -443,7 +443,7 @@ pub fn reconstruct_files(
         report.seconds.extract_s = extracted.extract_s;
     };
     let colour = Some(extracted.background.image());
-    match reconstruct_scan(scan, build_s, camera, config, planes, scale, colour) {
+    match reconstruct_scan(&scan, build_s, camera, config, planes, scale, colour) {
         Ok(mut rec) => {
             with_extraction(&mut rec.report);
             Ok(rec)

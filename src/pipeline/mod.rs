@@ -69,7 +69,8 @@ pub enum PlaneSource<'a> {
     /// Self-calibration with these planes per frame and laser (an earlier estimate's: the
     /// daemon's last epoch) as one more start beside its own two
     /// ([`crate::solve::calibrate_until`]); where they lead to the solution the cold
-    /// starts find, the answer is the cold one, as with [`Self::SelfCalibrated`].
+    /// starts find, the answer is the cold one, as with [`Self::SelfCalibrated`]. The
+    /// daemon's final solve, where the cold starts alone gave no cloud.
     AlsoFrom(&'a [[Option<Vector3<f64>>; 2]]),
 }
 
@@ -304,13 +305,13 @@ pub fn reconstruct_curves(
     scan.refine_crossings(camera, config);
     let build_s = t.elapsed().as_secs_f64();
     tracing::debug!(add_s, refine_s = build_s - add_s, "scan built");
-    reconstruct_scan(scan, build_s, camera, config, source, scale, colour_source)
+    reconstruct_scan(&scan, build_s, camera, config, source, scale, colour_source)
 }
 
 /// [`reconstruct_curves`] of a scan built already (the live daemon builds its own frame
 /// by frame, with the same [`Scan::add_frame`]); `build_s` is the time that took.
 pub fn reconstruct_scan(
-    scan: Scan,
+    scan: &Scan,
     build_s: f64,
     camera: &Camera,
     config: &Config,
@@ -318,7 +319,7 @@ pub fn reconstruct_scan(
     scale: &ScaleMode,
     colour_source: Option<&RgbImage>,
 ) -> Result<Reconstruction, PipelineError> {
-    let record = scan.record;
+    let record = &scan.record;
     let mut times = StageTimes::default();
     let frames_with_laser = record.frames_with_curves;
     let t = Instant::now();
@@ -393,7 +394,7 @@ pub fn reconstruct_scan(
 
     let t = Instant::now();
     let mut out = triangulate::cloud(
-        &record,
+        record,
         &planes,
         0..record.planes.len(),
         curve_crossings,
@@ -412,7 +413,7 @@ pub fn reconstruct_scan(
         tracing::warn!("{w}");
     }
     let mut rec = report::assemble(
-        &record,
+        record,
         &evidence,
         calibration,
         out,

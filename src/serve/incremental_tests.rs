@@ -530,3 +530,38 @@ fn a_failed_first_epoch_is_tried_again_without_a_rest() {
     solver.add_frame(frames[1].clone(), 0);
     assert!(solver.pending.is_some(), "the next try waited");
 }
+
+/// The final solve's rule: the cold starts' answer stands, and the last epoch's planes
+/// start a second solve only where the first gives no cloud and there is an epoch.
+#[test]
+fn the_final_solve_starts_from_the_last_epoch_only_where_the_cold_one_gives_no_cloud() {
+    use std::cell::Cell;
+    let warm_runs = Cell::new(0);
+    let warm = |answer: u32| {
+        let runs = &warm_runs;
+        move || {
+            runs.set(runs.get() + 1);
+            Ok::<u32, PipelineError>(answer)
+        }
+    };
+    let failed = || Err(PipelineError::Solve(solve::SolveError::Degenerate("test")));
+    // A cloud from the cold starts: `reconstruct`'s, the epoch not asked.
+    assert_eq!(cold_then_warm(|| Ok(1), Some(warm(2))).ok(), Some(1));
+    assert_eq!(warm_runs.get(), 0);
+    // No cloud from them: the epoch's.
+    assert_eq!(cold_then_warm(failed, Some(warm(2))).ok(), Some(2));
+    assert_eq!(warm_runs.get(), 1);
+    // No epoch: the failure stands.
+    let none: Option<fn() -> Result<u32, PipelineError>> = None;
+    assert!(matches!(
+        cold_then_warm(failed, none),
+        Err(PipelineError::Solve(_))
+    ));
+    // A failure the planes are not to blame for (the scale) is not solved again.
+    let scale = || Err(PipelineError::Scale(cloud::ScaleError::Empty));
+    assert!(matches!(
+        cold_then_warm(scale, Some(warm(2))),
+        Err(PipelineError::Scale(_))
+    ));
+    assert_eq!(warm_runs.get(), 1);
+}
