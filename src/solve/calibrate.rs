@@ -528,12 +528,17 @@ fn two_starts(
         },
         // Without the linear start's estimates there is nothing to screen against
         // (`OnHalf::best_score` would give none): the screen is not refined for nothing.
+        // The twins' screens side by side as well: in sequence, the second ran alone on
+        // one core once the linear start's refinement was done (1.4 s of the
+        // 5,400-frame dive's solve at one core busy; a screen's half of the anchors is
+        // below `dense::PARALLEL_MIN_DIM`, so its factorisations take one thread).
         || -> [Option<super::screen::OnHalf>; 2] {
             let screen = |k: usize| {
                 let c = centre.as_ref().filter(|_| linear_error.is_none())?;
                 super::screen::on_half(sub, &c.twins[k], sigma_px, eparams)
             };
-            [screen(0), screen(1)]
+            let (first, second) = rayon::join(|| screen(0), || screen(1));
+            [first, second]
         },
     );
     let mut estimates = Vec::new();
