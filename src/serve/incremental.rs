@@ -393,7 +393,7 @@ impl Incremental {
     /// Only where that gives no cloud (the solve fails, or its planes are refused) is
     /// it made again with the last epoch's planes as one more start: where the cold
     /// starts miss the basin and the epochs did not (clutter 14 of the random draw:
-    /// refused offline, 495 planes live, none wrong). Until 2026-12-06 that start ran
+    /// refused offline, 511 planes live, none wrong). Until 2026-12-06 that start ran
     /// beside the cold ones every time: on the 1,800- and 5,400-frame replays it never
     /// won, and it cost about 3 s of the two cores after the last frame. Afterwards no
     /// more frames can be added.

@@ -600,10 +600,10 @@ impl Layout<'_> {
     }
 
     /// The gauge's value alone, as [`Self::gauge`] gives it, for [`Self::renormalise`]
-    /// after every trial step (the gradient was a third of the time the minimisation's
-    /// own thread spent outside the factorisations, perf of the dive's folds). The
-    /// same terms in the same order: a term whose gradient does not exist (`n·r = 0`)
-    /// has `|ρ|` within rounding of 0, which the ray-plane angle test leaves out first.
+    /// after every trial step, which threw the gradient away (the gauge was 11 % of the
+    /// minimisation's own thread's samples in the dive's fold restarts). The same terms
+    /// in the same order: a term whose gradient does not exist (`n·r = 0`) has `|ρ|`
+    /// within rounding of 0, which the ray-plane angle test leaves out first.
     fn gauge_value(&self, state: &State, rays: &[Option<Ray>]) -> f64 {
         let (sum, count) = self.gauge_terms(state, rays, |_, _, _| true);
         sum / count.max(1) as f64
