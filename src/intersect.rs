@@ -526,8 +526,21 @@ pub fn nearest_index_from(
 /// place contributes only the pass that crosses there). `max_step` bounds the steps
 /// between consecutive points ([`max_step`]).
 pub fn dense_run(points: &[[f64; 2]], near: [f64; 2], radius: f64, max_step: f64) -> &[[f64; 2]] {
+    dense_run_from(points, near, radius, max_step, 0)
+}
+
+/// [`dense_run`], its closest point searched outwards from the index `guess`
+/// ([`nearest_index_from`]: the same run for any guess, found in fewer looks the nearer
+/// the guess is).
+pub fn dense_run_from(
+    points: &[[f64; 2]],
+    near: [f64; 2],
+    radius: f64,
+    max_step: f64,
+    guess: usize,
+) -> &[[f64; 2]] {
     let d2 = |p: &[f64; 2]| (p[0] - near[0]).powi(2) + (p[1] - near[1]).powi(2);
-    let Some(closest) = nearest_index(points, near, max_step) else {
+    let Some(closest) = nearest_index_from(points, near, max_step, guess) else {
         return &[];
     };
     let r2 = radius * radius;
@@ -675,9 +688,17 @@ mod tests {
                 let full =
                     (0..points.len()).min_by(|&i, &j| d2(&points[i]).total_cmp(&d2(&points[j])));
                 assert_eq!(nearest_index(&points, near, max_step(&points)), full);
+                let whole = dense_run(&points, near, 2.5, max_step(&points));
                 for guess in [0, 20, 39, 40, 41, 60, 79] {
                     let from = nearest_index_from(&points, near, max_step(&points), guess);
                     assert_eq!(from, full, "from {guess}");
+                    // The run about the nearest point is the same from any guess.
+                    let run = dense_run_from(&points, near, 2.5, max_step(&points), guess);
+                    assert_eq!(
+                        (run.as_ptr(), run.len()),
+                        (whole.as_ptr(), whole.len()),
+                        "run from {guess}"
+                    );
                 }
             }
         }

@@ -72,11 +72,12 @@ impl PlaneCurves {
     /// searched.
     pub(crate) fn dense_near(&self, u: [f64; 2], radius: f64) -> &[[f64; 2]] {
         match self.run_near(u, radius) {
-            Some((ci, lo, hi)) => crate::intersect::dense_run(
+            Some((ci, lo, hi, guess)) => crate::intersect::dense_run_from(
                 &self.curves[ci].points[lo..=hi],
                 u,
                 radius,
                 self.max_step[ci],
+                guess - lo,
             ),
             None => &[],
         }
@@ -91,19 +92,28 @@ impl PlaneCurves {
         };
         let (start, end) = self.segment_span(ci, k);
         let points = &self.curves[ci].points[start..=end];
-        let guess = match &self.curves[ci].polyline[k..] {
-            [a, b, ..] => {
-                let t = crate::intersect::segment_param(u, *a, *b);
-                (t * (end - start) as f64).round() as usize
-            }
-            _ => 0,
-        };
+        let guess = self.projected_index(ci, k, u) - start;
         let nearest = crate::intersect::nearest_index_from(points, u, self.max_step[ci], guess);
         (start + nearest.unwrap_or(0)) as u32
     }
 
-    /// Curve index and the range of its dense points around `u` (see [`Self::dense_near`]).
-    fn run_near(&self, u: [f64; 2], radius: f64) -> Option<(usize, usize, usize)> {
+    /// The dense point of curve `ci` where `u` projects onto its polyline segment `k`
+    /// (between the segment's two vertices, `u`'s place along it: the dense points run
+    /// along a segment about evenly), where the nearest-point searches start.
+    fn projected_index(&self, ci: usize, k: usize, u: [f64; 2]) -> usize {
+        let (start, end) = self.segment_span(ci, k);
+        match &self.curves[ci].polyline[k..] {
+            [a, b, ..] => {
+                let t = crate::intersect::segment_param(u, *a, *b);
+                start + (t * (end - start) as f64).round() as usize
+            }
+            _ => start,
+        }
+    }
+
+    /// Curve index, the range of its dense points around `u` (see [`Self::dense_near`]),
+    /// and where `u` projects into it ([`Self::projected_index`]).
+    fn run_near(&self, u: [f64; 2], radius: f64) -> Option<(usize, usize, usize, usize)> {
         let (_, ci, k) = (0..self.curves.len())
             .filter_map(|ci| self.nearest_segment(ci, u).map(|(d, k)| (d, ci, k)))
             .fold(None, |best: Option<(f64, usize, usize)>, c| match best {
@@ -124,7 +134,7 @@ impl PlaneCurves {
         while hi + 1 < points.len() && d2(&points[hi + 1]) <= r2 {
             hi += 1;
         }
-        Some((ci, lo, hi))
+        Some((ci, lo, hi, self.projected_index(ci, k, u)))
     }
 
     /// Distance to `u` and index of the polyline segment of curve `ci` nearest `u`
