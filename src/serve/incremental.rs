@@ -413,13 +413,16 @@ impl Incremental {
                 self.colour.as_deref(),
             )
         };
-        let rec = cold_then_warm(
+        let result = cold_then_warm(
             || solve(PlaneSource::SelfCalibrated),
             earlier
                 .as_deref()
                 .map(|planes| move || solve(PlaneSource::AlsoFrom(planes))),
-        )?;
+        );
+        // The scan is let go whatever the outcome: the caller writes the cloud or the
+        // failure's report next, and no frame can follow.
         self.scan = Scan::new(&self.camera, &self.config);
+        let rec = result?;
         self.epoch += 1;
         self.counts.epoch = self.epoch;
         self.counts.points = rec.cloud.len() as u64;
