@@ -520,27 +520,32 @@ fn two_starts(
         Err(e) => return Err(e),
     };
     let sigma_px = start_spread_px(&start, evidence);
-    let (refined, on_half) = rayon::join(
-        || {
-            linear_error
-                .is_none()
-                .then(|| refine_starts(sub, &planes, start.focal_scale, sigma_px, eparams))
-        },
-        // Without the linear start's estimates there is nothing to screen against
-        // (`OnHalf::best_score` would give none): the screen is not refined for nothing.
-        // The twins' screens side by side as well: in sequence, the second ran alone on
-        // one core once the linear start's refinement was done (1.4 s of the
-        // 5,400-frame dive's solve at one core busy; a screen's half of the anchors is
-        // below `dense::PARALLEL_MIN_DIM`, so its factorisations take one thread).
-        || -> [Option<super::screen::OnHalf>; 2] {
-            let screen = |k: usize| {
-                let c = centre.as_ref().filter(|_| linear_error.is_none())?;
-                super::screen::on_half(sub, &c.twins[k], sigma_px, eparams)
-            };
-            let (first, second) = rayon::join(|| screen(0), || screen(1));
-            [first, second]
-        },
-    );
+    match &centre {
+        Some(c) => tracing::debug!(
+            "the centre start: crosses {:.2}° from orthogonal",
+            c.orthogonality_rms.asin().to_degrees()
+        ),
+        None => tracing::debug!("no centre start"),
+    }
+    // The twins fit the start's own evidence alike; the hand's walk tells them apart.
+    // Each is screened against the linear start's estimates only, not against the other
+    // twin: a start refined on half the anchors may stop in a poor minimum its
+    // refinement on all of them leaves (on tuning 15 the right twin scored worse than
+    // the wrong one on the half, then found a shift on all anchors that beat it by
+    // 5·10⁴), and which twin comes first is rounding. The linear start's best is
+    // refitted on the half once, for both. Each piece begins as soon as what it needs is
+    // known ([`super::pieces`]); without the linear start's estimates there is nothing
+    // to screen against, and the twins are refined unscreened.
+    let pieces = StartPieces {
+        sub,
+        linear_planes: linear_error
+            .is_none()
+            .then_some((&planes[..], start.focal_scale)),
+        twins: centre.as_ref().map(|c| &c.twins),
+        sigma_px,
+        eparams,
+    };
+    let (refined, [first, second]) = super::pieces::run(&pieces);
     let mut estimates = Vec::new();
     let mut failure = linear_error;
     match refined {
@@ -548,63 +553,74 @@ fn two_starts(
         Some(Err(e)) => failure = Some(e),
         None => {}
     }
-    match centre {
-        Some(c) => {
-            tracing::debug!(
-                "the centre start: crosses {:.2}° from orthogonal",
-                c.orthogonality_rms.asin().to_degrees()
-            );
-            // The twins fit the start's own evidence alike; the hand's walk tells them
-            // apart. Each is screened against the linear start's estimates only, not
-            // against the other twin: a start refined on half the anchors may stop in
-            // a poor minimum its refinement on all of them leaves (on tuning 15 the
-            // right twin scored worse than the wrong one on the half, then found a
-            // shift on all anchors that beat it by 5·10⁴), and which twin comes first is
-            // rounding. The linear start's best is refitted on the half once, for both.
-            let best_on_half = on_half
-                .iter()
-                .flatten()
-                .next()
-                .and_then(|h| h.best_score(sub, &estimates, eparams));
-            // Where the caller spares the cores (offline, the daemon's final solve), the
-            // twins refine side by side (each is partly serial); a live epoch keeps to
-            // one, beside the extraction (side by side, a table top's live replay
-            // dropped 3 frames of 300). The estimates join in the twins' order, so the
-            // answer is the one made in sequence.
-            let refine = |k: usize| {
-                let loses = on_half[k]
-                    .as_ref()
-                    .zip(best_on_half)
-                    .is_some_and(|(h, best)| h.loses_to_score(best));
-                if loses {
-                    tracing::debug!(
-                        twin = k,
-                        "the centre start loses on every other anchor: left out"
-                    );
-                    return Vec::new();
-                }
-                match refine_starts(sub, &c.twins[k], 1.0, sigma_px, eparams) {
-                    Ok(found) => found,
-                    Err(e) => {
-                        tracing::debug!(twin = k, "the centre start did not refine: {e}");
-                        Vec::new()
-                    }
-                }
-            };
-            let (first, second) = if eparams.threads.0 > 1 {
-                rayon::join(|| refine(0), || refine(1))
-            } else {
-                (refine(0), refine(1))
-            };
-            estimates.extend(first);
-            estimates.extend(second);
-        }
-        None => tracing::debug!("no centre start"),
-    }
+    estimates.extend(first);
+    estimates.extend(second);
     match (estimates.is_empty(), failure) {
         (true, Some(e)) => Err(e),
         (true, None) => Err(SolveError::Degenerate("no start for the joint estimate")),
         (false, _) => Ok((start, planes, estimates)),
+    }
+}
+
+/// The pieces of [`two_starts`]' refinements ([`super::pieces`]).
+struct StartPieces<'a> {
+    sub: &'a Evidence,
+    /// The linear start's planes and focal scale, where it found any.
+    linear_planes: Option<(&'a [Option<V3>], f64)>,
+    /// The centre start's twins, where it found them.
+    twins: Option<&'a [Vec<Option<V3>>; 2]>,
+    sigma_px: f64,
+    eparams: &'a EstimateParams,
+}
+
+impl super::pieces::Pieces for StartPieces<'_> {
+    type Estimate = Estimate;
+    type Screen = super::screen::OnHalf;
+
+    fn linear(&self) -> Option<Result<Vec<Estimate>, SolveError>> {
+        let (planes, lambda) = self.linear_planes?;
+        Some(refine_starts(
+            self.sub,
+            planes,
+            lambda,
+            self.sigma_px,
+            self.eparams,
+        ))
+    }
+
+    /// Without the linear start's estimates there is nothing to screen against
+    /// (`OnHalf::best_score` would give none): the screen is not refined for nothing.
+    fn screen(&self, twin: usize) -> Option<Self::Screen> {
+        let twins = self.twins.filter(|_| self.linear_planes.is_some())?;
+        super::screen::on_half(self.sub, &twins[twin], self.sigma_px, self.eparams)
+    }
+
+    fn best_on_half(&self, screen: &Self::Screen, linear: &[Estimate]) -> Option<f64> {
+        screen.best_score(self.sub, linear, self.eparams)
+    }
+
+    fn loses(&self, screen: &Self::Screen, best: f64) -> bool {
+        screen.loses_to_score(best)
+    }
+
+    fn refine_twin(&self, twin: usize, loses: bool) -> Vec<Estimate> {
+        let Some(twins) = self.twins else {
+            return Vec::new();
+        };
+        if loses {
+            tracing::debug!(
+                twin,
+                "the centre start loses on every other anchor: left out"
+            );
+            return Vec::new();
+        }
+        match refine_starts(self.sub, &twins[twin], 1.0, self.sigma_px, self.eparams) {
+            Ok(found) => found,
+            Err(e) => {
+                tracing::debug!(twin, "the centre start did not refine: {e}");
+                Vec::new()
+            }
+        }
     }
 }
 

@@ -52,6 +52,7 @@ pub mod init;
 pub mod nullspace;
 pub mod ortho;
 pub mod outside;
+mod pieces;
 pub mod pose;
 mod scatter;
 mod screen;
