@@ -209,25 +209,29 @@ fn epochs_are_monotone_in_evidence() {
 /// epoch kept 1,997 points on planes over 1 % off), because jagged polylines cross
 /// several times where their curves cross once and each copy counts as an
 /// observation, which makes the deviations 2-3x optimistic (docs/accuracy.md,
-/// Uncertainty). It passes since the estimator's later changes, deterministically
-/// since the driver waits for an epoch after ten frames: six epochs, none with a point
-/// on a plane over the bound, with the motion terms' information counted or not.
+/// Uncertainty). It passes since the estimator's later changes: six epochs, none with a
+/// point on a plane over the bound, with the motion terms' information counted or not.
+/// Not deterministically: the epochs land where the machine's load lets them (the
+/// driver waits for one only after ten frames), and where they land on 15, 24, 30 and
+/// 40 frames (3 of 12 runs with two tests side by side) a frame placed against the
+/// fourth is on a wrong plane; that case is held, ignored as known, by
+/// [`frames_placed_against_an_epoch_lie_on_right_planes_whatever_the_timing`].
 #[test]
 fn epochs_are_monotone_in_evidence_at_high_noise() {
     assert_epochs_monotone(0.3);
 }
 
-/// The epochs' and final cloud's points on wrong planes (see
-/// [`epochs_are_monotone_in_evidence`]) with `noise_px` of Gaussian noise on every
-/// curve point.
-fn assert_epochs_monotone(noise_px: f64) {
-    let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
-    let mut config = Config::default();
-    config.solve.max_anchor_poses = 40;
-    let (scan, frames) = path_frames(&camera, &config);
+/// [`path_frames`] with `noise_px` of Gaussian noise on every curve point (the
+/// polylines are the noisy points).
+fn noisy_path_frames(
+    camera: &Camera,
+    config: &Config,
+    noise_px: f64,
+) -> (crate::solve::synthetic::PathScan, Vec<Vec<Curve>>) {
+    let (scan, frames) = path_frames(camera, config);
     let mut rng = crate::solve::synthetic::Rng::new(5);
     let sigma = noise_px / camera.fx;
-    let frames: Vec<Vec<Curve>> = frames
+    let frames = frames
         .into_iter()
         .map(|curves| {
             curves
@@ -243,6 +247,17 @@ fn assert_epochs_monotone(noise_px: f64) {
                 .collect()
         })
         .collect();
+    (scan, frames)
+}
+
+/// The epochs' and final cloud's points on wrong planes (see
+/// [`epochs_are_monotone_in_evidence`]) with `noise_px` of Gaussian noise on every
+/// curve point.
+fn assert_epochs_monotone(noise_px: f64) {
+    let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+    let mut config = Config::default();
+    config.solve.max_anchor_poses = 40;
+    let (scan, frames) = noisy_path_frames(&camera, &config, noise_px);
     let mut solver = Incremental::new(
         camera,
         config.clone(),
@@ -564,4 +579,73 @@ fn the_final_solve_starts_from_the_last_epoch_only_where_the_cold_one_gives_no_c
         Err(PipelineError::Scale(_))
     ));
     assert_eq!(warm_runs.get(), 1);
+}
+
+/// Feeds `frames` and makes an epoch on exactly the first `at[k]` frames, waiting for
+/// each: the epochs a run makes when its timing puts them there.
+fn epochs_at(solver: &mut Incremental, frames: Vec<Vec<Curve>>, at: &[usize]) -> Vec<Sent> {
+    let mut epochs: Vec<Sent> = Vec::new();
+    for (i, curves) in frames.into_iter().enumerate() {
+        solver.next_solve_at = usize::MAX;
+        let out = solver.add_frame(curves, 0);
+        if out.epoch.is_some() {
+            epochs.push(Sent::default());
+        }
+        for b in out.batches {
+            let e = epochs.last_mut().expect("no points before the first epoch");
+            match b.kind {
+                BatchKind::Epoch => e.cloud.extend(b.points),
+                BatchKind::Arrival | BatchKind::Backlog => e.placed.extend(b.points),
+            }
+        }
+        if at.contains(&(i + 1)) {
+            solver.next_solve_at = 0;
+            solver.maybe_start_solve(0);
+            while solver.solving() {
+                std::thread::sleep(std::time::Duration::from_millis(5));
+            }
+        }
+    }
+    epochs
+}
+
+/// [`epochs_are_monotone_in_evidence_at_high_noise`] with its epochs where a loaded
+/// machine made them in 3 of 12 runs (on 15, 24, 30 and 40 frames): frame 56, placed
+/// against the 40-frame epoch, lies 1.15 % off (255 points) at a depth deviation of
+/// 0.065 % (median). Its laser-1 curve runs along an anchor's (frame 11's) and, at
+/// 0.3 px of noise, crosses it 70 times, each an observation: a third of its 174
+/// crossings reject the fit. The scan's own rate of rejected crossings is 21 % at this
+/// noise, so a verdict on that share does not single it out (tried). Known, not fixed:
+/// docs/accuracy.md, "Uncertainty".
+#[test]
+#[ignore = "known: a frame whose curve runs along an anchor's is placed 1.15 % off (docs/accuracy.md, Uncertainty)"]
+fn frames_placed_against_an_epoch_lie_on_right_planes_whatever_the_timing() {
+    let camera = Camera::with_fov(1200, 900, 2.0 * 0.6f64.atan());
+    let mut config = Config::default();
+    config.solve.max_anchor_poses = 40;
+    let (scan, frames) = noisy_path_frames(&camera, &config, 0.3);
+    let mut solver = Incremental::new(
+        camera,
+        config.clone(),
+        IncrementalParams {
+            min_planes_first_solve: 30,
+            solve_growth: 1.25,
+            epoch_duty: 1.0,
+        },
+        ScaleMode::Factor { factor: 1.0 },
+    );
+    let bound = 3.0 * config.triangulate.max_depth_sigma;
+    let epochs = epochs_at(&mut solver, frames, &[15, 24, 30, 40]);
+    assert_eq!(epochs.len(), 4);
+    for (k, e) in epochs.iter().enumerate().skip(1) {
+        let both: Vec<Point> = e.cloud.iter().chain(&e.placed).copied().collect();
+        let wrong = points_on_wrong_planes(&scan, &both, bound)
+            - points_on_wrong_planes_of(&scan, &both, bound, e.cloud.len());
+        assert_eq!(
+            wrong,
+            0,
+            "epoch {k}: {wrong} of {} placed points on wrong planes",
+            e.placed.len()
+        );
+    }
 }
