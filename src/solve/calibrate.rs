@@ -403,6 +403,8 @@ fn calibrate_with(
     } else {
         conditional::complete(evidence, &split, est, &eparams)
     };
+    // The fits stop early once cancelled: what they gave is no answer.
+    cancel.check()?;
     let verdicts = verdicts(evidence, &est);
     let count = |v: PlaneVerdict| verdicts.iter().filter(|x| **x == v).count();
     let summary = CalibrationSummary {

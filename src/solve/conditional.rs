@@ -680,6 +680,12 @@ pub fn complete(
             .into_par_iter()
             .map(|f| {
                 split.anchor_of_pose[f].is_none().then_some(())?;
+                // A superseded live epoch stops here too (the caller then reports the
+                // cancellation): on a 7,800-plane epoch these fits were 3.7 s of one
+                // core, unchecked, beside the final solve that cancelled it.
+                if params.cancel.is_cancelled() {
+                    return None;
+                }
                 let start = match before.and_then(|b| b[f].as_ref()) {
                     Some(fit) => Start::Warm(fit.pose),
                     None => Start::Cold(nearest_anchor(f)),

@@ -91,3 +91,31 @@ fn poses_fitted_against_anchors_know_how_well_they_are_known() {
     let err = median(finite.iter().map(|r| r.0).collect());
     assert!(err < 1e-3, "median depth error {err}");
 }
+
+/// A cancelled solve (a live epoch the final solve supersedes) fits no pose outside the
+/// anchors: each fit looks at the request first, and the fits are seconds of a core.
+#[test]
+fn a_cancelled_completion_fits_no_pose() {
+    let scan = path_scan(&PathSpec {
+        frames: 45,
+        ..PathSpec::default()
+    });
+    let ev = anchored_every(evidence_of(&scan, 0.1, 3, |_, _| true), 3);
+    let params = SolveParams::default();
+    let split = super::conditional::AnchorSplit::of(&ev);
+    let anchors = calibrate(&split.evidence, &params).expect("anchors");
+    let outside = (0..ev.num_poses()).filter(|&p| !ev.is_anchor(p)).count();
+    let fitted = |cancelled: bool| {
+        let eparams = params.estimate_params();
+        if cancelled {
+            eparams.cancel.cancel();
+        }
+        let est = super::conditional::complete(&ev, &split, anchors.estimate.clone(), &eparams);
+        (0..ev.num_poses())
+            .filter(|&p| !ev.is_anchor(p) && est.marginals[p][(0, 0)].is_finite())
+            .count()
+    };
+    assert!(outside > 20, "{outside} poses outside the anchors");
+    assert_eq!(fitted(false), outside);
+    assert_eq!(fitted(true), 0);
+}
