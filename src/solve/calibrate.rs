@@ -624,6 +624,12 @@ impl super::pieces::Pieces for StartPieces<'_> {
             }
         }
     }
+
+    /// Where the caller spares the cores (offline, the daemon's final solve: their dense
+    /// factorisations take more than one thread), the pieces run side by side.
+    fn side_by_side(&self) -> bool {
+        self.eparams.threads.0 > 1
+    }
 }
 
 /// With the focal scale estimated: while the joint estimate of least cost moves the focal

@@ -16,8 +16,10 @@
 //! alone after the other. Here each piece is spawned by whichever piece completes what
 //! it needs, `L` and `S₀` first, so that `R₀` can begin beside `S₁`. The answers land
 //! in fixed slots, so the result is the one the pieces make in sequence, whatever the
-//! order in which they complete; on a one-thread pool (a live epoch) they run in
-//! sequence.
+//! order in which they complete. Where the caller spares no core ([`Pieces::side_by_side`]
+//! false: a live epoch beside the extraction, which on a table top's replay dropped 3
+//! frames of 300 with its twins side by side) they run in sequence on the calling
+//! thread, with the same answer.
 
 use std::sync::Mutex;
 
@@ -38,6 +40,8 @@ pub(super) trait Pieces: Sync {
     fn loses(&self, screen: &Self::Screen, best: f64) -> bool;
     /// `R_k`: twin `k` refined, told whether it lost on the half (then it is left out).
     fn refine_twin(&self, twin: usize, loses: bool) -> Vec<Self::Estimate>;
+    /// Whether the pieces may run side by side on the pool's threads.
+    fn side_by_side(&self) -> bool;
 }
 
 /// The linear start's refinement as [`Pieces::linear`] gives it.
@@ -63,21 +67,40 @@ pub(super) fn run<P: Pieces>(pieces: &P) -> (Linear<P::Estimate>, [Vec<P::Estima
         twins: [Vec::new(), Vec::new()],
     });
     let st = &state;
-    // FIFO: with two threads, `L` and `S₀` are taken first and `S₁` after.
-    rayon::scope_fifo(|s| {
-        s.spawn_fifo(move |s| {
-            let linear = pieces.linear();
-            lock(st).linear = Some(linear);
-            advance(s, st, pieces);
-        });
-        for k in 0..2 {
+    let refine = move |k: usize, loses: bool| {
+        let found = pieces.refine_twin(k, loses);
+        lock(st).twins[k] = found;
+    };
+    if pieces.side_by_side() {
+        // FIFO: with two threads, `L` and `S₀` are taken first and `S₁` after.
+        rayon::scope_fifo(|s| {
             s.spawn_fifo(move |s| {
-                let screen = pieces.screen(k);
-                lock(st).screens[k] = Some(screen);
-                advance(s, st, pieces);
+                let linear = pieces.linear();
+                lock(st).linear = Some(linear);
+                for (k, loses) in ready(st, pieces) {
+                    s.spawn_fifo(move |_| refine(k, loses));
+                }
             });
+            for k in 0..2 {
+                s.spawn_fifo(move |s| {
+                    let screen = pieces.screen(k);
+                    lock(st).screens[k] = Some(screen);
+                    for (k, loses) in ready(st, pieces) {
+                        s.spawn_fifo(move |_| refine(k, loses));
+                    }
+                });
+            }
+        });
+    } else {
+        lock(st).linear = Some(pieces.linear());
+        for k in 0..2 {
+            let screen = pieces.screen(k);
+            lock(st).screens[k] = Some(screen);
         }
-    });
+        for (k, loses) in ready(st, pieces) {
+            refine(k, loses);
+        }
+    }
     let state = state
         .into_inner()
         .expect("no piece panicked holding the state");
@@ -88,8 +111,9 @@ fn lock<P: Pieces>(st: &Mutex<State<P>>) -> std::sync::MutexGuard<'_, State<P>> 
     st.lock().expect("no piece panicked holding the state")
 }
 
-/// Makes `B` once it can be made, and spawns each `R_k` whose screen and `B` are known.
-fn advance<'s, P: Pieces>(scope: &rayon::ScopeFifo<'s>, st: &'s Mutex<State<P>>, pieces: &'s P) {
+/// Makes `B` once it can be made, and marks as started each twin whose screen and `B`
+/// are known: those twins, and whether each lost on the half.
+fn ready<P: Pieces>(st: &Mutex<State<P>>, pieces: &P) -> Vec<(usize, bool)> {
     let mut g = lock(st);
     if g.best.is_none() {
         // The first screen there is: `S₀`'s, or `S₁`'s where `S₀` has none.
@@ -110,8 +134,9 @@ fn advance<'s, P: Pieces>(scope: &rayon::ScopeFifo<'s>, st: &'s Mutex<State<P>>,
         }
     }
     let Some(best) = g.best else {
-        return;
+        return Vec::new();
     };
+    let mut out = Vec::new();
     for k in 0..2 {
         let Some(screen) = g.screens[k].as_ref().filter(|_| !g.started[k]) else {
             continue;
@@ -120,18 +145,18 @@ fn advance<'s, P: Pieces>(scope: &rayon::ScopeFifo<'s>, st: &'s Mutex<State<P>>,
             .as_ref()
             .zip(best)
             .is_some_and(|(h, best)| pieces.loses(h, best));
-        g.started[k] = true;
-        scope.spawn_fifo(move |_| {
-            let found = pieces.refine_twin(k, loses);
-            lock(st).twins[k] = found;
-        });
+        out.push((k, loses));
     }
+    for &(k, _) in &out {
+        g.started[k] = true;
+    }
+    out
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
     use std::time::{Duration, Instant};
 
     /// Pieces of numbers: the linear start gives `[10, 11]`, twin `k`'s screen is
@@ -144,6 +169,11 @@ mod tests {
         wait: bool,
         twin0_began: AtomicBool,
         screen1_saw_twin0: AtomicBool,
+        side_by_side: bool,
+        /// Each piece takes 20 ms, counted in `running` (the most at once in `most`).
+        dwell: bool,
+        running: AtomicUsize,
+        most: AtomicUsize,
     }
 
     impl Numbers {
@@ -154,6 +184,20 @@ mod tests {
                 wait: false,
                 twin0_began: AtomicBool::new(false),
                 screen1_saw_twin0: AtomicBool::new(false),
+                side_by_side: true,
+                dwell: false,
+                running: AtomicUsize::new(0),
+                most: AtomicUsize::new(0),
+            }
+        }
+
+        /// A piece's own time, where the pieces dwell.
+        fn dwell(&self) {
+            if self.dwell {
+                let now = self.running.fetch_add(1, Ordering::SeqCst) + 1;
+                self.most.fetch_max(now, Ordering::SeqCst);
+                std::thread::sleep(Duration::from_millis(20));
+                self.running.fetch_sub(1, Ordering::SeqCst);
             }
         }
     }
@@ -162,9 +206,11 @@ mod tests {
         type Estimate = u32;
         type Screen = i64;
         fn linear(&self) -> Option<Result<Vec<u32>, SolveError>> {
+            self.dwell();
             self.linear.then(|| Ok(vec![10, 11]))
         }
         fn screen(&self, twin: usize) -> Option<i64> {
+            self.dwell();
             if twin == 1 && self.wait {
                 let until = Instant::now() + Duration::from_secs(5);
                 while !self.twin0_began.load(Ordering::SeqCst) && Instant::now() < until {
@@ -182,6 +228,7 @@ mod tests {
             *screen as f64 - best >= 100.0
         }
         fn refine_twin(&self, twin: usize, loses: bool) -> Vec<u32> {
+            self.dwell();
             if twin == 0 {
                 self.twin0_began.store(true, Ordering::SeqCst);
             }
@@ -190,6 +237,9 @@ mod tests {
             } else {
                 vec![20 + twin as u32]
             }
+        }
+        fn side_by_side(&self) -> bool {
+            self.side_by_side
         }
     }
 
@@ -232,15 +282,39 @@ mod tests {
             ([None, None], true, [vec![20], vec![21]]),
             ([Some(0), Some(500)], false, [vec![20], vec![21]]),
         ];
-        for threads in [1, 2] {
+        for (threads, side_by_side) in [(1, true), (2, true), (2, false)] {
             for (screens, linear, want) in &cases {
-                let pieces = Numbers::new(*screens, *linear);
+                let pieces = Numbers {
+                    side_by_side,
+                    ..Numbers::new(*screens, *linear)
+                };
                 let (found, twins) = on_threads(threads, || run(&pieces));
                 assert_eq!(
                     &twins, want,
-                    "{screens:?} linear {linear}, {threads} threads"
+                    "{screens:?} linear {linear}, {threads} threads, side by side {side_by_side}"
                 );
                 assert_eq!(found.is_some(), *linear);
+            }
+        }
+    }
+
+    /// Where the caller spares no core, one piece runs at a time even on two threads;
+    /// where it does, they overlap.
+    #[test]
+    fn pieces_run_one_at_a_time_where_no_core_is_spared() {
+        for side_by_side in [false, true] {
+            let pieces = Numbers {
+                side_by_side,
+                dwell: true,
+                ..Numbers::new([Some(0), Some(0)], true)
+            };
+            let (_, twins) = on_threads(2, || run(&pieces));
+            assert_eq!(twins, [vec![20], vec![21]]);
+            let most = pieces.most.load(Ordering::SeqCst);
+            if side_by_side {
+                assert_eq!(most, 2, "side by side");
+            } else {
+                assert_eq!(most, 1, "in sequence");
             }
         }
     }
