@@ -242,14 +242,31 @@ impl Sample {
             }
             c + e1 * p[0] + e2 * p[1]
         };
+        // The null vectors' entries at each cross's two planes, gathered once: the
+        // residuals are evaluated some thousands of times per direction, and over
+        // contiguous columns their loop runs two crosses at a time (the same
+        // arithmetic as `plane`'s, so the same bits).
+        let at = |x: &Vec<f64>, pick: fn(&(usize, usize)) -> usize, half: usize| -> Vec<f64> {
+            self.crosses.iter().map(|c| x[2 * pick(c) + half]).collect()
+        };
+        let columns: Vec<[Vec<f64>; 4]> = xs
+            .iter()
+            .map(|x| {
+                [
+                    at(x, |c| c.0, 0),
+                    at(x, |c| c.0, 1),
+                    at(x, |c| c.1, 0),
+                    at(x, |c| c.1, 1),
+                ]
+            })
+            .collect();
+        let frame = (*c, e1, e2);
         let residuals = |theta: &[f64]| -> DVector<f64> {
-            DVector::from_iterator(
-                self.crosses.len(),
-                self.crosses.iter().map(|&(a, b)| {
-                    let (va, vb) = (plane(theta, a), plane(theta, b));
-                    va.dot(&vb) / (va.norm() * vb.norm()).max(f64::MIN_POSITIVE)
-                }),
-            )
+            match &columns[..] {
+                [x] => cross_cosines::<1>(theta, [x], frame),
+                [x, y] => cross_cosines::<2>(theta, [x, y], frame),
+                _ => unreachable!("one or two null vectors"),
+            }
         };
         let k = 2 + xs.len();
         let scale = (n as f64).sqrt();
@@ -270,6 +287,32 @@ impl Sample {
     fn score(&self, c: &V3) -> Option<f64> {
         self.planes(c).map(|(_, s)| s)
     }
+}
+
+/// The cosine of each cross (see [`Sample::planes`]) for the unknowns `theta`: `q` and
+/// the weights of the `N` null vectors, whose entries at the crosses' planes `x` holds
+/// (`[x_a, y_a, x_b, y_b]` per vector, a column each).
+fn cross_cosines<const N: usize>(
+    theta: &[f64],
+    x: [&[Vec<f64>; 4]; N],
+    (c, e1, e2): (V3, V3, V3),
+) -> DVector<f64> {
+    let n = x[0][0].len();
+    let mut out = DVector::zeros(n);
+    for (i, r) in out.iter_mut().enumerate() {
+        let mut pa = [theta[0], theta[1]];
+        let mut pb = [theta[0], theta[1]];
+        for (j, x) in x.iter().enumerate() {
+            pa[0] += theta[2 + j] * x[0][i];
+            pa[1] += theta[2 + j] * x[1][i];
+            pb[0] += theta[2 + j] * x[2][i];
+            pb[1] += theta[2 + j] * x[3][i];
+        }
+        let va = c + e1 * pa[0] + e2 * pa[1];
+        let vb = c + e1 * pb[0] + e2 * pb[1];
+        *r = va.dot(&vb) / (va.norm() * vb.norm()).max(f64::MIN_POSITIVE);
+    }
+    out
 }
 
 /// Levenberg–Marquardt with forward-difference derivatives, for a handful of unknowns.
@@ -359,6 +402,48 @@ mod tests {
     use super::*;
     use crate::solve::evidence::{Observation, PlaneSlot, RayModel};
     use crate::solve::synthetic::{analytic_crossings, path_scan, PathSpec, Scene};
+
+    /// The crosses' cosines from the gathered columns are, to the bit, those of the
+    /// planes `c + P p` each made on its own from the null vectors' entries.
+    #[test]
+    fn gathered_cosines_are_the_planes_own() {
+        let c = V3::new(0.3, -0.2, 0.9).normalize();
+        let (e1, e2) = (V3::x(), c.cross(&V3::x()).normalize());
+        let n = 9;
+        let x: Vec<Vec<f64>> = (0..2)
+            .map(|j| (0..2 * n).map(|i| ((i * 7 + j * 3) as f64).sin()).collect())
+            .collect();
+        let crosses = [(0, 1), (2, 5), (4, 3), (8, 6), (7, 0)];
+        let column = |x: &Vec<f64>| -> [Vec<f64>; 4] {
+            [
+                crosses.iter().map(|c| x[2 * c.0]).collect(),
+                crosses.iter().map(|c| x[2 * c.0 + 1]).collect(),
+                crosses.iter().map(|c| x[2 * c.1]).collect(),
+                crosses.iter().map(|c| x[2 * c.1 + 1]).collect(),
+            ]
+        };
+        let (cx, cy) = (column(&x[0]), column(&x[1]));
+        let theta = [0.11, -0.07, 0.5, -1.3];
+        for m in 1..=2 {
+            let got = match m {
+                1 => cross_cosines::<1>(&theta, [&cx], (c, e1, e2)),
+                _ => cross_cosines::<2>(&theta, [&cx, &cy], (c, e1, e2)),
+            };
+            let plane = |i: usize| {
+                let mut p = [theta[0], theta[1]];
+                for (j, x) in x.iter().take(m).enumerate() {
+                    p[0] += theta[2 + j] * x[2 * i];
+                    p[1] += theta[2 + j] * x[2 * i + 1];
+                }
+                c + e1 * p[0] + e2 * p[1]
+            };
+            for (k, &(a, b)) in crosses.iter().enumerate() {
+                let (va, vb) = (plane(a), plane(b));
+                let want = va.dot(&vb) / (va.norm() * vb.norm()).max(f64::MIN_POSITIVE);
+                assert_eq!(got[k].to_bits(), want.to_bits(), "{m} vectors, cross {k}");
+            }
+        }
+    }
 
     /// A table top with a shallow crease (half a degree): the curves barely bend, so the
     /// linear start has little to stand on; the fixed centre finds the planes. (On a table
