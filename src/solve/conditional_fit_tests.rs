@@ -9,6 +9,63 @@ use super::*;
 /// its own deviation, and both lie within a few deviations of the truth.
 #[test]
 fn a_fit_repeated_from_its_own_end_lands_where_a_cold_one_does() {
+    let (anchors, truth, ties) = ties_around_anchors();
+    let focal_px = 1000.0;
+    let params = EstimateParams::default();
+    let fit =
+        |ties: &[Tie], start| fit_pose(focal_px, &anchors, 1.0, &params, ties, start).expect("fit");
+    let first = fit(&ties, Start::Cold(Some(anchors[2])));
+    let wider: Vec<Tie> = ties.iter().map(|t| Tie { sigma: 0.08, ..*t }).collect();
+    let cold = fit(&wider, Start::Cold(Some(anchors[2])));
+    let warm = fit(&wider, Start::Warm(first.pose));
+    // The difference in the pose's local parameters, against its deviations.
+    let apart = |p: &CrossPose, q: &CrossPose| -> V6 {
+        let turn = nalgebra::Rotation3::from_matrix_unchecked(p.rotation * q.rotation.transpose());
+        let t = turn.scaled_axis();
+        let c = p.centre - q.centre;
+        V6::new(t.x, t.y, t.z, c.x, c.y, c.z)
+    };
+    let sd = V6::from_fn(|i, _| cold.h_inv[(i, i)].sqrt());
+    let worst = |d: V6| d.component_div(&sd).amax();
+    assert!(
+        worst(apart(&warm.pose, &cold.pose)) < 0.01,
+        "{}",
+        worst(apart(&warm.pose, &cold.pose))
+    );
+    assert!(
+        worst(apart(&cold.pose, &truth)) < 5.0,
+        "{}",
+        worst(apart(&cold.pose, &truth))
+    );
+}
+
+/// A superseded epoch's fits stop before the anchors' uncertainty is carried into
+/// them: once cancelled, no fit is propagated.
+#[test]
+fn a_cancelled_propagation_gives_no_pose() {
+    let (anchors, _, ties) = ties_around_anchors();
+    let params = EstimateParams::default();
+    let fit = || {
+        fit_pose(
+            1000.0,
+            &anchors,
+            1.0,
+            &params,
+            &ties,
+            Start::Cold(Some(anchors[2])),
+        )
+    };
+    let cov = Mat::<f64>::identity(POSE_DOF * anchors.len(), POSE_DOF * anchors.len()) * 1e-8;
+    let fits = || vec![fit(), None, fit()];
+    let count = |out: Vec<Option<Fitted>>| out.iter().filter(|f| f.is_some()).count();
+    assert_eq!(count(propagated_all(fits(), &cov, &params)), 2);
+    params.cancel.cancel();
+    assert_eq!(count(propagated_all(fits(), &cov, &params)), 0);
+}
+
+/// Six anchor poses, the pose between them they are fitted against (the truth), and
+/// its ties with them: its crossings with each anchor's planes, 0.05 px of noise across.
+fn ties_around_anchors() -> (Vec<CrossPose>, CrossPose, Vec<Tie>) {
     let anchors: Vec<CrossPose> = (0..6).map(|k| pose(0.37 * f64::from(k) - 0.9)).collect();
     let truth = pose(0.25);
     let focal_px = 1000.0;
@@ -41,32 +98,7 @@ fn a_fit_repeated_from_its_own_end_lands_where_a_cold_one_does() {
         }
     }
     assert!(ties.len() >= 40, "{} ties", ties.len());
-    let params = EstimateParams::default();
-    let fit =
-        |ties: &[Tie], start| fit_pose(focal_px, &anchors, 1.0, &params, ties, start).expect("fit");
-    let first = fit(&ties, Start::Cold(Some(anchors[2])));
-    let wider: Vec<Tie> = ties.iter().map(|t| Tie { sigma: 0.08, ..*t }).collect();
-    let cold = fit(&wider, Start::Cold(Some(anchors[2])));
-    let warm = fit(&wider, Start::Warm(first.pose));
-    // The difference in the pose's local parameters, against its deviations.
-    let apart = |p: &CrossPose, q: &CrossPose| -> V6 {
-        let turn = nalgebra::Rotation3::from_matrix_unchecked(p.rotation * q.rotation.transpose());
-        let t = turn.scaled_axis();
-        let c = p.centre - q.centre;
-        V6::new(t.x, t.y, t.z, c.x, c.y, c.z)
-    };
-    let sd = V6::from_fn(|i, _| cold.h_inv[(i, i)].sqrt());
-    let worst = |d: V6| d.component_div(&sd).amax();
-    assert!(
-        worst(apart(&warm.pose, &cold.pose)) < 0.01,
-        "{}",
-        worst(apart(&warm.pose, &cold.pose))
-    );
-    assert!(
-        worst(apart(&cold.pose, &truth)) < 5.0,
-        "{}",
-        worst(apart(&cold.pose, &truth))
-    );
+    (anchors, truth, ties)
 }
 
 /// The fit's normal equations, from each tie's residual alone and the pose's planes
