@@ -77,7 +77,7 @@ pub(crate) struct LinePoint {
     /// offset found without one, the smoothed response and its first two derivatives
     /// across, the flank distance from which the step is measured
     /// ([`Detector::step_across`]) and the scale. The linker measures the steps of
-    /// linked points only (`super::glow_moves`).
+    /// linked points only (`super::glow::glow_moves`).
     pub ridge: [f32; 4],
     pub flank_px: f32,
     pub sigma: f32,
