@@ -243,23 +243,10 @@ impl Sample {
             c + e1 * p[0] + e2 * p[1]
         };
         // The null vectors' entries at each cross's two planes, gathered once: the
-        // residuals are evaluated some thousands of times per direction, and over
-        // contiguous columns their loop runs two crosses at a time (the same
-        // arithmetic as `plane`'s, so the same bits).
-        let at = |x: &Vec<f64>, pick: fn(&(usize, usize)) -> usize, half: usize| -> Vec<f64> {
-            self.crosses.iter().map(|c| x[2 * pick(c) + half]).collect()
-        };
-        let columns: Vec<[Vec<f64>; 4]> = xs
-            .iter()
-            .map(|x| {
-                [
-                    at(x, |c| c.0, 0),
-                    at(x, |c| c.0, 1),
-                    at(x, |c| c.1, 0),
-                    at(x, |c| c.1, 1),
-                ]
-            })
-            .collect();
+        // residuals are evaluated some thousands of times per direction, and read
+        // them from contiguous columns, with the same arithmetic as `plane`'s (so the
+        // same bits).
+        let columns = cross_columns(&xs, &self.crosses);
         let frame = (*c, e1, e2);
         let residuals = |theta: &[f64]| -> DVector<f64> {
             match &columns[..] {
@@ -287,6 +274,24 @@ impl Sample {
     fn score(&self, c: &V3) -> Option<f64> {
         self.planes(c).map(|(_, s)| s)
     }
+}
+
+/// Per null vector of `xs`, its entries at the two planes of each of `crosses`: the
+/// columns `[x_a, y_a, x_b, y_b]` that [`cross_cosines`] reads.
+fn cross_columns(xs: &[&Vec<f64>], crosses: &[(usize, usize)]) -> Vec<[Vec<f64>; 4]> {
+    let at = |x: &[f64], pick: fn(&(usize, usize)) -> usize, half: usize| -> Vec<f64> {
+        crosses.iter().map(|c| x[2 * pick(c) + half]).collect()
+    };
+    xs.iter()
+        .map(|x| {
+            [
+                at(x, |c| c.0, 0),
+                at(x, |c| c.0, 1),
+                at(x, |c| c.1, 0),
+                at(x, |c| c.1, 1),
+            ]
+        })
+        .collect()
 }
 
 /// The cosine of each cross (see [`Sample::planes`]) for the unknowns `theta`: `q` and
@@ -404,7 +409,8 @@ mod tests {
     use crate::solve::synthetic::{analytic_crossings, path_scan, PathSpec, Scene};
 
     /// The crosses' cosines from the gathered columns are, to the bit, those of the
-    /// planes `c + P p` each made on its own from the null vectors' entries.
+    /// planes `c + P p` each made on its own from the null vectors' entries, with one
+    /// null vector and with two.
     #[test]
     fn gathered_cosines_are_the_planes_own() {
         let c = V3::new(0.3, -0.2, 0.9).normalize();
@@ -414,20 +420,13 @@ mod tests {
             .map(|j| (0..2 * n).map(|i| ((i * 7 + j * 3) as f64).sin()).collect())
             .collect();
         let crosses = [(0, 1), (2, 5), (4, 3), (8, 6), (7, 0)];
-        let column = |x: &Vec<f64>| -> [Vec<f64>; 4] {
-            [
-                crosses.iter().map(|c| x[2 * c.0]).collect(),
-                crosses.iter().map(|c| x[2 * c.0 + 1]).collect(),
-                crosses.iter().map(|c| x[2 * c.1]).collect(),
-                crosses.iter().map(|c| x[2 * c.1 + 1]).collect(),
-            ]
-        };
-        let (cx, cy) = (column(&x[0]), column(&x[1]));
         let theta = [0.11, -0.07, 0.5, -1.3];
         for m in 1..=2 {
-            let got = match m {
-                1 => cross_cosines::<1>(&theta, [&cx], (c, e1, e2)),
-                _ => cross_cosines::<2>(&theta, [&cx, &cy], (c, e1, e2)),
+            let xs: Vec<&Vec<f64>> = x.iter().take(m).collect();
+            let got = match &cross_columns(&xs, &crosses)[..] {
+                [a] => cross_cosines::<1>(&theta, [a], (c, e1, e2)),
+                [a, b] => cross_cosines::<2>(&theta, [a, b], (c, e1, e2)),
+                _ => unreachable!("one or two vectors"),
             };
             let plane = |i: usize| {
                 let mut p = [theta[0], theta[1]];
