@@ -40,13 +40,7 @@ fn glow_frame_seeded(
 #[test]
 fn stripe_beside_its_glow_band_is_found_on_the_stripe() {
     let (w, h) = (96, 96);
-    let camera = Camera::with_fov(w, h, 1.0);
-    let params = ExtractParams {
-        min_curve_length_px: 5.0,
-        ..ExtractParams::default()
-    };
-    let mut ex = Extractor::new(&params, &camera).expect("extractor");
-    let background = Background::from_image(render(w, h, &flat(20.0), &[], 0.0, &mut Rng(1)));
+    let (mut ex, background) = small_frame_extractor(w, h);
     let s = 3.0 / 2.355;
     for theta in [0.1, 0.9, 2.0] {
         // Stripe centred at d = 0.3; glow from d = −12 to d = −4.
@@ -145,13 +139,7 @@ fn step_shift_recovers_the_centre_of_a_ridge_on_a_step() {
 /// angles, noise `noise` from `seed`.
 fn errors_across_rotations(profile: &dyn Fn(f64) -> f64, noise: f64, seed: u64) -> Vec<f64> {
     let (w, h) = (96u32, 96u32);
-    let camera = Camera::with_fov(w, h, 1.0);
-    let params = ExtractParams {
-        min_curve_length_px: 5.0,
-        ..ExtractParams::default()
-    };
-    let mut ex = Extractor::new(&params, &camera).expect("extractor");
-    let background = Background::from_image(render(w, h, &flat(20.0), &[], 0.0, &mut Rng(1)));
+    let (mut ex, background) = small_frame_extractor(w, h);
     let mut all = Vec::new();
     for theta in [0.1, 0.9, 2.0, 2.9] {
         let frame = glow_frame_seeded(w, h, theta, profile, noise, seed);
@@ -271,4 +259,17 @@ fn stripe_on_a_region_darker_than_its_background_is_found() {
         "{} curves on a darkened texture",
         none.len()
     );
+}
+
+/// An extractor for a small `w × h` frame that keeps curves from 5 px, and a flat
+/// background of 20 grey levels.
+fn small_frame_extractor(w: u32, h: u32) -> (Extractor, Background) {
+    let camera = Camera::with_fov(w, h, 1.0);
+    let params = ExtractParams {
+        min_curve_length_px: 5.0,
+        ..ExtractParams::default()
+    };
+    let ex = Extractor::new(&params, &camera).expect("extractor");
+    let background = Background::from_image(render(w, h, &flat(20.0), &[], 0.0, &mut Rng(1)));
+    (ex, background)
 }
