@@ -431,7 +431,7 @@ pub(super) struct Fitted {
 
 /// A pose fitted on its ties, before the anchors' uncertainty is propagated into it
 /// ([`PoseFit::propagated`]): the pose's own information and its blocks with the anchors.
-struct PoseFit {
+pub(super) struct PoseFit {
     pose: CrossPose,
     cost: f64,
     /// `H_ff⁻¹`, the noise part of the pose's covariance.
@@ -660,39 +660,64 @@ fn shown_spreads(fitted: &[Option<PoseFit>], spreads: &Spreads) -> Spreads {
     out
 }
 
-/// The whole estimate of `ev`: the anchors' joint estimate `anchor_est` (of
-/// `split.evidence`), and every other pose fitted against it (see the module docs). A
-/// pose that cannot be fitted keeps its nearest anchor's pose with an infinite
-/// covariance: nothing it gives is used.
-pub fn complete(
-    ev: &Evidence,
-    split: &AnchorSplit,
-    anchor_est: Estimate,
-    params: &EstimateParams,
-) -> Estimate {
-    let started = std::time::Instant::now();
-    let mut by_pose: Vec<Vec<u32>> = vec![Vec::new(); ev.num_poses()];
-    for (k, c) in ev.crossings.iter().enumerate() {
-        let (pa, pb) = (ev.planes[c.a as usize].pose, ev.planes[c.b as usize].pose);
-        let poses = if pa == pb { &[pa][..] } else { &[pa, pb][..] };
-        for &p in poses {
-            if split.anchor_of_pose[p as usize].is_none() {
-                by_pose[p as usize].push(k as u32);
+/// The poses outside the anchors and what their fits need: each one's crossings, the
+/// anchors' estimate and the settings.
+pub(super) struct Outside<'a> {
+    ev: &'a Evidence,
+    split: &'a AnchorSplit,
+    anchor_est: &'a Estimate,
+    params: &'a EstimateParams,
+    /// Per pose outside the anchors, its crossings.
+    by_pose: Vec<Vec<u32>>,
+}
+
+impl<'a> Outside<'a> {
+    pub(super) fn new(
+        ev: &'a Evidence,
+        split: &'a AnchorSplit,
+        anchor_est: &'a Estimate,
+        params: &'a EstimateParams,
+    ) -> Self {
+        let mut by_pose: Vec<Vec<u32>> = vec![Vec::new(); ev.num_poses()];
+        for (k, c) in ev.crossings.iter().enumerate() {
+            let (pa, pb) = (ev.planes[c.a as usize].pose, ev.planes[c.b as usize].pose);
+            let poses = if pa == pb { &[pa][..] } else { &[pa, pb][..] };
+            for &p in poses {
+                if split.anchor_of_pose[p as usize].is_none() {
+                    by_pose[p as usize].push(k as u32);
+                }
             }
         }
+        Self {
+            ev,
+            split,
+            anchor_est,
+            params,
+            by_pose,
+        }
     }
-    let nearest_anchor = |f: usize| {
-        let frame = ev.pose_frames[f];
-        split
+
+    /// The pose of the anchor nearest in frames to pose `f`.
+    fn nearest_anchor(&self, f: usize) -> Option<CrossPose> {
+        let frame = self.ev.pose_frames[f];
+        self.split
             .anchor_of_pose
             .iter()
             .enumerate()
-            .filter_map(|(p, a)| a.map(|a| (ev.pose_frames[p].abs_diff(frame), a as usize)))
+            .filter_map(|(p, a)| a.map(|a| (self.ev.pose_frames[p].abs_diff(frame), a as usize)))
             .min()
-            .map(|(_, a)| anchor_est.poses[a])
-    };
-    // Cold, or each from its own fit at other spreads where it has one.
-    let fit_all = |spreads: &Spreads, before: Option<&[Option<PoseFit>]>| {
+            .map(|(_, a)| self.anchor_est.poses[a])
+    }
+
+    /// Every pose outside the anchors fitted at `spreads`: cold, or each from its own
+    /// fit in `before` where it has one; `None` for the anchors, for a pose that cannot
+    /// be fitted, and for every pose not yet begun once `params.cancel` is set.
+    pub(super) fn fit_all(
+        &self,
+        spreads: &Spreads,
+        before: Option<&[Option<PoseFit>]>,
+    ) -> Vec<Option<PoseFit>> {
+        let (ev, split, params) = (self.ev, self.split, self.params);
         (0..ev.num_poses())
             .into_par_iter()
             .map(|f| {
@@ -705,16 +730,30 @@ pub fn complete(
                 }
                 let start = match before.and_then(|b| b[f].as_ref()) {
                     Some(fit) => Start::Warm(fit.pose),
-                    None => Start::Cold(nearest_anchor(f)),
+                    None => Start::Cold(self.nearest_anchor(f)),
                 };
-                let ties = ties_of(ev, split, &anchor_est, spreads, &by_pose[f], f);
-                let (poses, lambda) = (&anchor_est.poses, anchor_est.focal_scale);
+                let ties = ties_of(ev, split, self.anchor_est, spreads, &self.by_pose[f], f);
+                let (poses, lambda) = (&self.anchor_est.poses, self.anchor_est.focal_scale);
                 fit_pose(ev.focal_px, poses, lambda, params, &ties, start)
             })
-            .collect::<Vec<Option<PoseFit>>>()
-    };
+            .collect()
+    }
+}
+
+/// The whole estimate of `ev`: the anchors' joint estimate `anchor_est` (of
+/// `split.evidence`), and every other pose fitted against it (see the module docs). A
+/// pose that cannot be fitted keeps its nearest anchor's pose with an infinite
+/// covariance: nothing it gives is used.
+pub fn complete(
+    ev: &Evidence,
+    split: &AnchorSplit,
+    anchor_est: Estimate,
+    params: &EstimateParams,
+) -> Estimate {
+    let started = std::time::Instant::now();
+    let outside = Outside::new(ev, split, &anchor_est, params);
     let mut spreads = anchor_est.spreads;
-    let mut fits = fit_all(&spreads, None);
+    let mut fits = outside.fit_all(&spreads, None);
     // The anchors measured the spreads on their own crossings; where the other frames'
     // crossings show more (a few anchors absorb part of their own noise), the fits are
     // repeated at what they show, each from its own end: the spreads reweigh the
@@ -726,7 +765,7 @@ pub fn complete(
     if (0..2).any(|c| shown.crossing_px[c] > (1.0 + SPREAD_SETTLED) * spreads.crossing_px[c]) {
         tracing::debug!(?shown, anchors = ?spreads, "the fitted frames' crossings are wider spread than the anchors'");
         spreads = shown;
-        fits = fit_all(&spreads, Some(&fits));
+        fits = outside.fit_all(&spreads, Some(&fits));
     }
     let fitted = propagated_all(fits, &anchor_est.covariance, params);
     tracing::debug!(
@@ -757,7 +796,7 @@ pub fn complete(
                 scatter_crossings.push(fit.scatter_crossings);
             }
             (None, None) => {
-                poses.push(nearest_anchor(f).unwrap_or(anchor_est.poses[0]));
+                poses.push(outside.nearest_anchor(f).unwrap_or(anchor_est.poses[0]));
                 marginals.push(unknown);
                 scatter.push(PoseMarginal::zeros());
                 scatter_crossings.push(0);

@@ -118,4 +118,19 @@ fn a_cancelled_completion_fits_no_pose() {
     assert!(outside > 20, "{outside} poses outside the anchors");
     assert_eq!(fitted(false), outside);
     assert_eq!(fitted(true), 0);
+    // The fits themselves stop, not only the propagation after them.
+    let fits = |cancelled: bool| {
+        let eparams = params.estimate_params();
+        if cancelled {
+            eparams.cancel.cancel();
+        }
+        let est = &anchors.estimate;
+        super::conditional::Outside::new(&ev, &split, est, &eparams)
+            .fit_all(&est.spreads, None)
+            .iter()
+            .filter(|f| f.is_some())
+            .count()
+    };
+    assert_eq!(fits(false), outside);
+    assert_eq!(fits(true), 0);
 }
