@@ -298,6 +298,35 @@ impl ColourLut {
         self.response_of_class(laser, d[0], d[1], d[2], class)
     }
 
+    /// [`Self::response`] against a laser-off frame, with the raw pixel `raw` the
+    /// difference `d` came from. The difference is the laser's light alone only if
+    /// nothing else changed since the laser-off frame: where an object moved away
+    /// (a strand, a cable) or a lamp came on, the surface shows through brighter than
+    /// its background, in its own colour, and at its faint edges the noise gives the
+    /// difference any hue. So where `raw` is grey (a laser's stripe gives its pixel
+    /// its hue unless it is faint) the response is only what the own channel has beyond
+    /// the others, nothing for a grey; a pure laser difference loses only the other
+    /// channels' noise. Exempt are a clipped own channel (an overexposed core is white
+    /// in the frame and in the difference) and an own channel `min_value` or more above
+    /// the others (the shoulders of an overexposed stripe, which the sensor's crosstalk
+    /// washes out to a pale tint): there the difference is read as everywhere else.
+    #[inline]
+    pub fn response_off(&self, laser: u8, d: [u8; 3], raw: &[u8]) -> (u8, bool) {
+        let white = Some(Class::White as u8);
+        let class = self.classify(d[0], d[1], d[2]);
+        if class == white
+            && !self.own_clipped(laser, raw)
+            && self.classify(raw[0], raw[1], raw[2]) == white
+        {
+            let (own, foreign) = self.own_and_foreign(laser, d);
+            let beyond = own.saturating_sub(foreign);
+            if beyond < self.min_value {
+                return (beyond, false);
+            }
+        }
+        self.response_of_class(laser, d[0], d[1], d[2], class)
+    }
+
     /// [`Self::response_raw`] against a local background: the excess there still
     /// holds the surface's texture, in the surface's colour, where a laser-off frame
     /// would have taken it out. So the response is only what the laser's own channel

@@ -20,7 +20,10 @@
 //!    in the other laser's channels it neither hides nor fakes `k`'s faint stripe. A
 //!    pixel of a hue no laser has counts for `k` (activation and response) when its
 //!    light outside `k`'s channels is under `block_contrast`: a faint red stripe on the
-//!    green sheet's veil reads orange. Where the frame lies evenly below its background
+//!    green sheet's veil reads orange. A white difference on a pixel grey in the frame
+//!    is what changed since the background (a strand moved away, a lamp came on), not
+//!    laser light: it keeps only what `k`'s channel has beyond the others
+//!    ([`ColourLut::response_off`]). Where the frame lies evenly below its background
 //!    over a 32 px cell (`lift_darkened`: the other sheet's glow was in the background
 //!    there, not in this frame), the response is taken from the frame lifted by that
 //!    much.
@@ -891,8 +894,8 @@ fn response_rgb<'a>(
                 } else {
                     // Against a laser-off frame the difference is the laser's
                     // light alone, clipped cores included (a wide clipped top is
-                    // centred by the automatic scale).
-                    lut.response(laser, dr, dg, db)
+                    // centred by the automatic scale), but for what changed since.
+                    lut.response_off(laser, [dr, dg, db], f)
                 };
                 // Bit 1: the own channel clipped, which a flat top may be
                 // (`detect::width::FLAT_RATIO`).

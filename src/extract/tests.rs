@@ -355,6 +355,63 @@ fn white_core_with_a_coloured_fringe_is_found() {
     assert!(m.abs() <= 0.05 && sd <= 0.1, "bias {m} std {sd}");
 }
 
+/// A dark strand that lay across a dim grey-green wall in the laser-off frame and has
+/// moved away since: the wall shows through brighter than the background, grey in the
+/// frame and in the difference. Read as laser light, it gave curves along its length
+/// at the full excess (62 points); now only its noisy edges beside the stripe's tiles
+/// give short pieces (18), where the noise lends the faint excess a hue. The green
+/// stripe across it is found.
+#[test]
+fn a_strand_that_moved_since_the_laser_off_frame_leaves_only_its_noisy_edges() {
+    let (w, h) = (96u32, 96u32);
+    let wall = [46.0, 48.0, 44.0];
+    let strand_x = |y: f64| 30.0 + 0.2 * y;
+    let strand = move |x: f64, y: f64| {
+        let d = x - strand_x(y);
+        let shade = 1.0 - 0.8 * (-0.5 * d * d / (1.2 * 1.2)).exp();
+        wall.map(|c| c * shade)
+    };
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(
+        &ExtractParams {
+            line_width_px: None,
+            ..params_for(1.0, "red-green")
+        },
+        &camera,
+    )
+    .expect("extractor");
+    let background = Background::from_image(render(w, h, &strand, &[], 1.5, &mut Rng(7)));
+    let dist = |_x: f64, y: f64| y - 60.3;
+    let stripe = Stripe {
+        rgb: [0.1, 1.0, 0.15],
+        peak: 60.0,
+        s: 1.2,
+        distance: &dist,
+    };
+    let frame = render(w, h, &move |_, _| wall, &[stripe], 1.5, &mut Rng(8));
+    let curves = ex.extract(&frame, &background);
+    let points: Vec<[f32; 2]> = curves.iter().flat_map(|c| c.points_px.clone()).collect();
+    let on_strand = points
+        .iter()
+        .filter(|p| {
+            (p[0] as f64 - strand_x(p[1] as f64)).abs() < 3.0 && dist(0.0, p[1] as f64).abs() > 3.0
+        })
+        .count();
+    let on_stripe = errors(&curves, w, h, 8.0, &dist)
+        .into_iter()
+        .filter(|e| e.abs() < 0.5)
+        .count();
+    assert!(on_stripe >= 70, "{on_stripe} points on the stripe");
+    assert!(
+        on_strand * 4 <= on_stripe,
+        "{on_strand} points where the strand was, {on_stripe} on the stripe"
+    );
+    assert!(
+        curves.iter().all(|c| c.laser == 1),
+        "a curve of the red laser"
+    );
+}
+
 #[test]
 fn circular_arc_follows_the_circle() {
     let (w, h) = (96u32, 96u32);
