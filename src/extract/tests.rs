@@ -68,6 +68,16 @@ fn params_for(s: f64, lasers: &str) -> ExtractParams {
     }
 }
 
+/// An extractor for `w` × `h` frames of a pinhole camera with no width given (the
+/// automatic scale), for the lasers `lasers`.
+fn auto_width_extractor(w: u32, h: u32, lasers: &str) -> Extractor {
+    let params = ExtractParams {
+        line_width_px: None,
+        ..params_for(1.0, lasers)
+    };
+    Extractor::new(&params, &Camera::with_fov(w, h, 1.0)).expect("extractor")
+}
+
 fn mean_std(v: &[f64]) -> (f64, f64) {
     let n = v.len() as f64;
     let m = v.iter().sum::<f64>() / n;
@@ -280,12 +290,7 @@ fn thin_and_wide_stripes_in_one_frame() {
             distance: &d_wide,
         },
     ];
-    let params = ExtractParams {
-        line_width_px: None,
-        ..params_for(1.0, "red")
-    };
-    let camera = Camera::with_fov(w, h, 1.0);
-    let mut ex = Extractor::new(&params, &camera).expect("extractor");
+    let mut ex = auto_width_extractor(w, h, "red");
     let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
     let frame = render(w, h, &flat(bg), &stripes, peak / 40.0, &mut Rng(0x7417));
     let curves = ex.extract(&frame, &background);
@@ -331,15 +336,7 @@ fn white_core_with_a_coloured_fringe_is_found() {
         s,
         distance: &dist,
     };
-    let camera = Camera::with_fov(w, h, 1.0);
-    let mut ex = Extractor::new(
-        &ExtractParams {
-            line_width_px: None,
-            ..params_for(1.0, "red-green")
-        },
-        &camera,
-    )
-    .expect("extractor");
+    let mut ex = auto_width_extractor(w, h, "red-green");
     let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
     let frame = render(w, h, &flat(bg), &[stripe], 1.0, &mut Rng(0x3417e));
     // Noise 1: a saturated core reads 255 on a real sensor, not 255 minus noise (with
@@ -371,15 +368,7 @@ fn a_strand_that_moved_since_the_laser_off_frame_leaves_only_its_noisy_edges() {
         let shade = 1.0 - 0.8 * (-0.5 * d * d / (1.2 * 1.2)).exp();
         wall.map(|c| c * shade)
     };
-    let camera = Camera::with_fov(w, h, 1.0);
-    let mut ex = Extractor::new(
-        &ExtractParams {
-            line_width_px: None,
-            ..params_for(1.0, "red-green")
-        },
-        &camera,
-    )
-    .expect("extractor");
+    let mut ex = auto_width_extractor(w, h, "red-green");
     let background = Background::from_image(render(w, h, &strand, &[], 1.5, &mut Rng(7)));
     let dist = |_x: f64, y: f64| y - 60.3;
     let stripe = Stripe {
