@@ -290,34 +290,38 @@ impl ColourLut {
         if own_clipped {
             return (own.saturating_add(foreign), false);
         }
-        let white = Class::White as u8;
         let class = self.classify(d[0], d[1], d[2]);
-        if class == Some(white) && self.classify(raw[0], raw[1], raw[2]) == Some(white) {
+        if self.white_in_both(class, raw) {
             return (own.saturating_sub(foreign), false);
         }
         self.response_of_class(laser, d[0], d[1], d[2], class)
+    }
+
+    /// Whether a difference of class `class` is white and so is the raw pixel `raw` it
+    /// came from: light that is no laser's, whatever else it is.
+    #[inline]
+    fn white_in_both(&self, class: Option<u8>, raw: &[u8]) -> bool {
+        let white = Some(Class::White as u8);
+        class == white && self.classify(raw[0], raw[1], raw[2]) == white
     }
 
     /// [`Self::response`] against a laser-off frame, with the raw pixel `raw` the
     /// difference `d` came from. The difference is the laser's light alone only if
     /// nothing else changed since the laser-off frame: where an object moved away
     /// (a strand, a cable) or a lamp came on, the surface shows through brighter than
-    /// its background, in its own colour, and at its faint edges the noise gives the
-    /// difference any hue. So where `raw` is grey (a laser's stripe gives its pixel
-    /// its hue unless it is faint) the response is only what the own channel has beyond
-    /// the others, nothing for a grey; a pure laser difference loses only the other
-    /// channels' noise. Exempt are a clipped own channel (an overexposed core is white
-    /// in the frame and in the difference) and an own channel `min_value` or more above
-    /// the others (the shoulders of an overexposed stripe, which the sensor's crosstalk
-    /// washes out to a pale tint): there the difference is read as everywhere else.
+    /// its background, in its own colour. A pixel white in `raw` and white in `d`
+    /// ([`Self::white_in_both`]) is therefore not laser light (a laser's stripe has its
+    /// hue in one of the two) and keeps only what its own channel has beyond the
+    /// others, nothing for a grey. Exempt are a clipped own channel (an overexposed
+    /// core is white in both) and an own channel `min_value` or more above the others
+    /// (the shoulders of an overexposed stripe, which the sensor's crosstalk washes out
+    /// to a pale tint): there the difference is read as everywhere else. Where such a
+    /// surface's excess fades into the noise, at its edges, the noise lends it a hue
+    /// and a pixel cannot tell it from a faint stripe: short pieces can remain there.
     #[inline]
     pub fn response_off(&self, laser: u8, d: [u8; 3], raw: &[u8]) -> (u8, bool) {
-        let white = Some(Class::White as u8);
         let class = self.classify(d[0], d[1], d[2]);
-        if class == white
-            && !self.own_clipped(laser, raw)
-            && self.classify(raw[0], raw[1], raw[2]) == white
-        {
+        if self.white_in_both(class, raw) && !self.own_clipped(laser, raw) {
             let (own, foreign) = self.own_and_foreign(laser, d);
             let beyond = own.saturating_sub(foreign);
             if beyond < self.min_value {
