@@ -216,15 +216,21 @@ impl ColourLut {
     }
 
     /// Response of laser `laser` to one pixel's difference, and whether the pixel is
-    /// another laser's: the difference in the laser's own channels (the largest of
+    /// a hole in it: the difference in the laser's own channels (the largest of
     /// them) when the pixel is weak, white or of that laser's colour, or of another
     /// laser's colour but below `mask_value`; on a hue no laser has, the same when the
     /// light outside the laser's channels is below `mask_value`, else zero. So the two
-    /// stripes of a cross stay apart where they cross (their mix is bright in both), the
-    /// detector can drop points whose smoothing window reaches into the other laser's
-    /// stripe, and the other sheet's glow under water (in its own channels) neither
-    /// raises nor hides this laser's faint stripe: a faint red stripe on a green veil
-    /// of 10–20 grey levels reads orange, outside red's hues.
+    /// stripes of a cross stay apart where they cross (their mix is bright in both),
+    /// and the other sheet's glow under water (in its own channels) neither raises nor
+    /// hides this laser's faint stripe: a faint red stripe on a green veil of 10–20
+    /// grey levels reads orange, outside red's hues.
+    ///
+    /// A pixel of another laser's colour is zeroed, and it is a hole (the detector
+    /// drops the points whose smoothing window reaches it) only where zeroing took
+    /// away light: its own channel at `min_value` or more (the other stripe's
+    /// crosstalk, this stripe's flank where the two cross). One with noise in its own
+    /// channel (a single pixel a JPEG block's ringing turned red beside a green
+    /// stripe) loses nothing worth a point.
     #[inline]
     pub fn response(&self, laser: u8, dr: u8, dg: u8, db: u8) -> (u8, bool) {
         self.response_of_class(laser, dr, dg, db, self.classify(dr, dg, db))
@@ -255,7 +261,7 @@ impl ColourLut {
                 (if foreign < self.mask_value { own } else { 0 }, false)
             }
             Some(_) if dr.max(dg).max(db) < self.mask_value => (own, false),
-            Some(_) => (0, true),
+            Some(_) => (0, own >= self.min_value),
         }
     }
 }
@@ -402,7 +408,11 @@ mod tests {
         assert_eq!(lut.classify(10, 5, 3), None);
         // Red's response keeps red, white and weak pixels and drops green ones.
         assert_eq!(lut.response(0, 200, 10, 20), (200, false));
-        assert_eq!(lut.response(0, 10, 220, 30), (0, true));
+        assert_eq!(lut.response(0, 10, 220, 30), (0, false));
+        // Zeroed where its own channel held light (another stripe's crosstalk, the
+        // cross's centre): a hole the detector keeps its windows off. Zeroed where
+        // it held noise (a green pixel with red under `min_value`): no hole.
+        assert_eq!(lut.response(0, 40, 220, 30), (0, true));
         assert_eq!(lut.response(1, 10, 220, 30), (220, false));
         assert_eq!(lut.response(1, 250, 250, 240), (250, false));
         assert_eq!(lut.response(1, 10, 5, 3), (5, false));
@@ -414,7 +424,8 @@ mod tests {
         // A faint green stripe on the red sheet's glow stands out for green by its
         // green alone.
         assert_eq!(lut.response(1, 9, 13, 0).0 - lut.response(1, 9, 3, 0).0, 10);
-        assert_eq!(lut.response(0, 5, 25, 8), (0, true));
+        assert_eq!(lut.response(0, 5, 25, 8), (0, false));
+        assert_eq!(lut.response(0, 18, 40, 8), (0, true));
         // A faint red stripe on the green sheet's veil under water reads orange, a hue
         // of neither laser: it is red's, as the veil is too dim to be green's stripe.
         // Both dim: weak for both, each sees its own channel. Red brighter than

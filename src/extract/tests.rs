@@ -564,6 +564,39 @@ fn crossing_stripes_stay_apart() {
     }
 }
 
+/// A JPEG block's ringing turns single pixels beside a bright stripe into another
+/// laser's colour, with nothing in this laser's channel. Zeroing such a pixel takes no
+/// light from the stripe, so the points whose window reaches it stay.
+#[test]
+fn lone_pixels_of_the_other_colour_beside_a_stripe_leave_no_gap() {
+    let (w, h) = (96u32, 40u32);
+    let (s, peak, bg) = (1.2, 180.0, 15.0);
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&params_for(s, "red-green"), &camera).expect("extractor");
+    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let d_green = |_: f64, y: f64| y - 19.7;
+    let stripe = Stripe {
+        rgb: [0.05, 1.0, 0.05],
+        peak,
+        s,
+        distance: &d_green,
+    };
+    let mut frame = render(w, h, &flat(bg), &[stripe], peak / 40.0, &mut Rng(9));
+    // Every 8 px, 3 px beside the centre: red 45 above the background, green as the
+    // stripe's tail leaves it (under `min_value`).
+    for x in (4..w - 4).step_by(8) {
+        let p = frame.get_pixel_mut(x, 23);
+        p.0[0] = (bg + 45.0) as u8;
+        assert!(f64::from(p.0[1]) - bg < 16.0, "green {}", p.0[1]);
+    }
+    let curves = ex.extract(&frame, &background);
+    let green: Vec<Curve> = curves.iter().filter(|c| c.laser == 1).cloned().collect();
+    let e = errors(&green, w, h, 6.0, &d_green);
+    // Columns 6..=89: one point each.
+    assert!(e.len() >= 80, "{} points of 84", e.len());
+    assert!(e.iter().all(|d| d.abs() < 0.2), "{e:?}");
+}
+
 #[test]
 fn no_laser_gives_no_curves_and_wrong_size_is_an_error() {
     let camera = Camera::with_fov(40, 30, 1.0);
