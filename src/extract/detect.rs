@@ -16,6 +16,12 @@ mod profile;
 mod width;
 use width::{NO_LINE, WIDTH_MARGIN};
 
+use super::colour::SHARE_FULL;
+
+/// Where in a pixel's [`Detector::masked`] byte its chromatic share
+/// ([`super::colour::ColourLut::response_local`]) is.
+pub(crate) const SHARE_SHIFT: u32 = 2;
+
 /// Offsets `-r..=r` of the sampled Gaussian and its first two derivatives, normalised so
 /// that they are exact on constants, ramps and parabolas.
 ///
@@ -271,7 +277,8 @@ pub(crate) struct Detector {
     tile_level: Vec<u8>,
     /// The response still holds the surfaces' texture (a local background): tiles whose
     /// band is round ([`width::MAX_BAND_ROUNDNESS`]) or flat-topped ([`width::FLAT_RATIO`]) are not
-    /// searched. Set per frame.
+    /// searched, and a ridge point's strength is scaled by its chromatic share
+    /// ([`Self::chromatic_share`]). Set per frame.
     pub texture_kept: bool,
     /// Active tiles not searched for that since the last [`Self::prepare`].
     pub round_tiles: usize,
@@ -279,8 +286,10 @@ pub(crate) struct Detector {
     /// surface is told from one on a beam, for the local background's window.
     flat_top: profile::FlatTop,
     pub response: Vec<f32>,
-    /// Per pixel: bit 0 where the response was zeroed for another laser's colour, bit 1
-    /// where the laser's own channel is clipped (against a local background only).
+    /// Per pixel: bit 0 where the response was zeroed for another laser's colour and
+    /// lost light by it (a hole), bit 1 where the laser's own channel is clipped, bits
+    /// 2–7 ([`SHARE_SHIFT`]) the chromatic share in [`SHARE_FULL`]ths (bits 1–7
+    /// against a local background only).
     pub masked: Vec<u8>,
     row_s: Vec<f32>,
     row_d1: Vec<f32>,
@@ -672,6 +681,36 @@ impl Detector {
         [mean(0.0), mean(-flank_px), mean(flank_px)]
     }
 
+    /// The chromatic share of the ridge point at `p` (normal `n`): over the three
+    /// pixels nearest to it along the line, the mean of their shares weighted by
+    /// their response, 0 to 1. On a stripe it is the laser's own saturation (0.6–1,
+    /// less where 4:2:0 chroma spreads the colour over the pixel beside it); on a
+    /// grey or white texture near 0; on a pale tint in between.
+    fn chromatic_share(
+        response: &[f32],
+        masked: &[u8],
+        (w, h): (usize, usize),
+        p: [f32; 2],
+        n: [f32; 2],
+    ) -> f32 {
+        let (mut sum, mut weighted) = (0.0f32, 0.0f32);
+        for d in [-1.0f32, 0.0, 1.0] {
+            let (x, y) = ((p[0] - d * n[1]).round(), (p[1] + d * n[0]).round());
+            if x < 0.0 || y < 0.0 || x >= w as f32 || y >= h as f32 {
+                continue;
+            }
+            let i = y as usize * w + x as usize;
+            let r = response[i];
+            sum += r;
+            weighted += r * f32::from(masked[i] >> SHARE_SHIFT);
+        }
+        if sum > 0.0 {
+            weighted / (sum * f32::from(SHARE_FULL))
+        } else {
+            0.0
+        }
+    }
+
     /// The step of the response across a line at `p` (normal `n`) at
     /// [`STEP_DISTANCES`] distances, `flank_px` out and one px apart: at each, the
     /// mean of three samples along the line ahead minus the same behind.
@@ -871,6 +910,16 @@ impl Detector {
                     continue;
                 }
                 let (px, py) = (x as f32 + ox, y as f32 + oy);
+                // Against a local background the point is located on the laser's own
+                // channel, and its strength is the part of it with the laser's colour.
+                let share = if self.texture_kept {
+                    Self::chromatic_share(&self.response, &self.masked, (w, h), [px, py], [nx, ny])
+                } else {
+                    1.0
+                };
+                if -lambda * share < min_strength {
+                    continue;
+                }
                 let [centre, below, above] =
                     Self::flanks(&self.response, (w, h), [px, py], [nx, ny], flank_px);
                 // Stands above both flanks: a stripe (on a dark background or on a
@@ -899,7 +948,7 @@ impl Detector {
                     y: py,
                     nx,
                     ny,
-                    strength: -lambda / per_grey,
+                    strength: -lambda * share / per_grey,
                     pixel: pixel as u32,
                     ridge: [t, gk, d1, lambda],
                     flank_px,

@@ -53,12 +53,13 @@
 //! # Without a laser-off frame
 //! [`Background::local`] has the extractor estimate each frame's own background
 //! ([`local`]: a morphological opening 17 px wide, its noise bias measured and added
-//! back). The excess over it still holds the surfaces' texture, so there a laser's
-//! response is only what its own channel has beyond the largest other one
-//! ([`ColourLut::response_local`]: nothing for white or grey, in the raw frame or in the
-//! excess), except where its own channel is clipped and the others carry the core; a
-//! tile is activated only by pixels whose excess is purer in hue than the surface under
-//! them, and the faint-stripe activation (texture is ridge-like) is off.
+//! back). The excess over it still holds the surfaces' texture. A stripe is located
+//! on its laser's own channel, as against a laser-off frame, and a ridge point's
+//! strength is scaled by its chromatic share, the part of that channel beyond the
+//! largest other one ([`ColourLut::response_local`]: nothing for white or grey), except
+//! where its own channel is clipped and the others carry the core; a tile is activated
+//! only by pixels whose excess is purer in hue than the surface under them, and the
+//! faint-stripe activation (texture is ridge-like) is off.
 //!
 //! # Checks ([`ExtractStats`], `checks`)
 //! Points on a clipped own channel are counted, and a large share is warned about once;
@@ -889,17 +890,18 @@ fn response_rgb<'a>(
                     f[2].saturating_add(lift[2]).saturating_sub(b[2]),
                 );
                 let clipped = local && lut.own_clipped(laser, f);
-                let (r, other_laser) = if local {
+                let (r, hole, share) = if local {
                     lut.response_local(laser, [dr, dg, db], f, clipped)
                 } else {
                     // Against a laser-off frame the difference is the laser's
                     // light alone, clipped cores included (a wide clipped top is
                     // centred by the automatic scale), but for what changed since.
-                    lut.response_off(laser, [dr, dg, db], f)
+                    let (r, hole) = lut.response_off(laser, [dr, dg, db], f);
+                    (r, hole, 0)
                 };
                 // Bit 1: the own channel clipped, which a flat top may be
-                // (`detect::width::FLAT_RATIO`).
-                *m = u8::from(other_laser) | (u8::from(clipped) << 1);
+                // (`detect::width::FLAT_RATIO`); bits 2-7: the chromatic share.
+                *m = u8::from(hole) | (u8::from(clipped) << 1) | (share << detect::SHARE_SHIFT);
                 *o = r as f32;
             }
             i = end;

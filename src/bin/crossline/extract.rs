@@ -13,7 +13,8 @@ use image::RgbImage;
 ///
 /// The background (a laser-off frame) is subtracted first; without one, each frame is
 /// measured against its own local background (a robust estimate wider than the
-/// stripe), and only what a laser's own channel has beyond the others counts.
+/// stripe), and a ridge counts by the part of its light that has the laser's colour
+/// (white and grey texture counts for nothing).
 #[derive(clap::Args)]
 pub struct Args {
     /// The frame (PNG or JPEG).
