@@ -8,7 +8,8 @@
 //! pixel count). `REALISTIC_SCANS` (default 12) and `REALISTIC_FRAMES` (default 3)
 //! set how many scans are drawn (seeds 1..; under water skipped) and frames of each;
 //! `REALISTIC_POLICY` (one of the names below) runs that policy alone, for profiling;
-//! `REALISTIC_DUMP=DIR` writes each frame, its lit mask and its curves there;
+//! `REALISTIC_DUMP=DIR` writes each frame, its laser-off frame, its local background,
+//! its lit mask, its curves and its stray points there;
 //! `REALISTIC_VERBOSE=1` prints each frame's scores (its scan and index, recall, stray
 //! points, median error) and the extractor's counters;
 //! `REALISTIC_REPEAT=N` extracts each frame N times, so that a profile of the bench is
@@ -107,6 +108,11 @@ fn main() {
                     let dir = std::path::Path::new(&dir);
                     let stem = format!("{seed:03}-{index:03}");
                     img.save(dir.join(format!("{stem}.png"))).ok();
+                    off.image().save(dir.join(format!("{stem}-off.png"))).ok();
+                    if bg.is_local() {
+                        let local = extractor.local_background();
+                        local.save(dir.join(format!("{stem}-localbg.png"))).ok();
+                    }
                     image::GrayImage::from_raw(cam.width, cam.height, lit.clone())
                         .map(|m| m.save(dir.join(format!("{stem}-lit.png"))));
                     let file = crossline::extract::CurvesFile::new(
