@@ -13,13 +13,14 @@
 //! frame once the point list has grown to its working size.
 
 mod profile;
+mod sample;
 mod width;
+use sample::bilinear;
 use width::{NO_LINE, WIDTH_MARGIN};
 
-use super::colour::SHARE_FULL;
-
 /// Where in a pixel's [`Detector::masked`] byte its chromatic share
-/// ([`super::colour::ColourLut::response_local`]) is.
+/// ([`super::colour::ColourLut::response_local`], in
+/// [`super::colour::SHARE_FULL`]ths) is.
 pub(crate) const SHARE_SHIFT: u32 = 2;
 
 /// Offsets `-r..=r` of the sampled Gaussian and its first two derivatives, normalised so
@@ -240,21 +241,6 @@ fn normal_cdf(u: f32) -> f32 {
     }
 }
 
-/// The response at `(x, y)`, bilinear between pixel centres, the border repeated.
-#[inline]
-fn bilinear(response: &[f32], (w, h): (usize, usize), x: f32, y: f32) -> f32 {
-    let (xf, yf) = (x.floor(), y.floor());
-    let (fx, fy) = (x - xf, y - yf);
-    let (x0, y0) = (xf as isize, yf as isize);
-    let px = |xx: isize, yy: isize| {
-        let xx = xx.clamp(0, w as isize - 1) as usize;
-        let yy = yy.clamp(0, h as isize - 1) as usize;
-        response[yy * w + xx]
-    };
-    (px(x0, y0) * (1.0 - fx) + px(x0 + 1, y0) * fx) * (1.0 - fy)
-        + (px(x0, y0 + 1) * (1.0 - fx) + px(x0 + 1, y0 + 1) * fx) * fy
-}
-
 /// A pixel rectangle `[x0, x1, y0, y1)`; empty when `x0 >= x1`.
 type Rect = [usize; 4];
 const EMPTY: Rect = [usize::MAX, 0, usize::MAX, 0];
@@ -288,7 +274,7 @@ pub(crate) struct Detector {
     pub response: Vec<f32>,
     /// Per pixel: bit 0 where the response was zeroed for another laser's colour and
     /// lost light by it (a hole), bit 1 where the laser's own channel is clipped, bits
-    /// 2–7 ([`SHARE_SHIFT`]) the chromatic share in [`SHARE_FULL`]ths (bits 1–7
+    /// 2–7 ([`SHARE_SHIFT`]) the chromatic share in [`super::colour::SHARE_FULL`]ths (bits 1–7
     /// against a local background only).
     pub masked: Vec<u8>,
     row_s: Vec<f32>,
@@ -644,91 +630,6 @@ impl Detector {
                 }
             }
         }
-    }
-
-    /// Whether a pixel zeroed for another colour lies within `r` of the pixels
-    /// `[x0, x1) × [y0, y1)`: the smoothed response there is distorted by the hole (e.g.
-    /// at the cross centre).
-    fn near_mask(masked: &[u8], (w, h): (usize, usize), r: usize, [x0, x1, y0, y1]: Rect) -> bool {
-        let (xa, xb) = (x0.saturating_sub(r), (x1 + r).min(w));
-        let (ya, yb) = (y0.saturating_sub(r), (y1 + r).min(h));
-        // OR-ing whole rows, rather than stopping at the first hit, vectorises.
-        (ya..yb).any(|yy| {
-            masked[yy * w + xa..yy * w + xb]
-                .iter()
-                .fold(0, |a, &m| a | m)
-                & 1
-                != 0
-        })
-    }
-
-    /// The response at `p` and at its two flanks, `flank_px` back and forth along the
-    /// normal `n`: `[centre, behind, ahead]`, each the mean of three samples along
-    /// the line.
-    fn flanks(
-        response: &[f32],
-        (w, h): (usize, usize),
-        p: [f32; 2],
-        n: [f32; 2],
-        flank_px: f32,
-    ) -> [f32; 3] {
-        let at = |x: f32, y: f32| bilinear(response, (w, h), x, y);
-        // Mean of three samples along the line (the tangent is (−ny, nx)).
-        let mean = |d: f32| -> f32 {
-            let (cx, cy) = (p[0] + d * n[0], p[1] + d * n[1]);
-            (at(cx - n[1], cy + n[0]) + at(cx, cy) + at(cx + n[1], cy - n[0])) / 3.0
-        };
-        [mean(0.0), mean(-flank_px), mean(flank_px)]
-    }
-
-    /// The chromatic share of the ridge point at `p` (normal `n`): over the three
-    /// pixels nearest to it along the line, the mean of their shares weighted by
-    /// their response, 0 to 1. On a stripe it is the laser's own saturation (0.6–1,
-    /// less where 4:2:0 chroma spreads the colour over the pixel beside it); on a
-    /// grey or white texture near 0; on a pale tint in between.
-    fn chromatic_share(
-        response: &[f32],
-        masked: &[u8],
-        (w, h): (usize, usize),
-        p: [f32; 2],
-        n: [f32; 2],
-    ) -> f32 {
-        let (mut sum, mut weighted) = (0.0f32, 0.0f32);
-        for d in [-1.0f32, 0.0, 1.0] {
-            let (x, y) = ((p[0] - d * n[1]).round(), (p[1] + d * n[0]).round());
-            if x < 0.0 || y < 0.0 || x >= w as f32 || y >= h as f32 {
-                continue;
-            }
-            let i = y as usize * w + x as usize;
-            let r = response[i];
-            sum += r;
-            weighted += r * f32::from(masked[i] >> SHARE_SHIFT);
-        }
-        if sum > 0.0 {
-            weighted / (sum * f32::from(SHARE_FULL))
-        } else {
-            0.0
-        }
-    }
-
-    /// The step of the response across a line at `p` (normal `n`) at
-    /// [`STEP_DISTANCES`] distances, `flank_px` out and one px apart: at each, the
-    /// mean of three samples along the line ahead minus the same behind.
-    pub(crate) fn step_across(
-        &self,
-        p: [f32; 2],
-        n: [f32; 2],
-        flank_px: f32,
-    ) -> [f32; STEP_DISTANCES] {
-        let at = |x: f32, y: f32| bilinear(&self.response, (self.width, self.height), x, y);
-        let side = |d: f32| -> f32 {
-            let (cx, cy) = (p[0] + d * n[0], p[1] + d * n[1]);
-            at(cx - n[1], cy + n[0]) + at(cx, cy) + at(cx + n[1], cy - n[0])
-        };
-        std::array::from_fn(|k| {
-            let d = flank_px + k as f32;
-            (side(d) - side(-d)) / 3.0
-        })
     }
 
     fn column_pass_and_hessian(&mut self, level: usize, t: usize, min_strength: f32) {

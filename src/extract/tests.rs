@@ -59,6 +59,11 @@ fn flat(v: f64) -> impl Fn(f64, f64) -> [f64; 3] {
     move |_, _| [v; 3]
 }
 
+/// A laser-off frame of a flat grey `v`, without noise.
+fn flat_background(w: u32, h: u32, v: f64) -> Background {
+    Background::from_image(render(w, h, &flat(v), &[], 0.0, &mut Rng(1)))
+}
+
 fn params_for(s: f64, lasers: &str) -> ExtractParams {
     ExtractParams {
         line_width_px: Some(s * (8.0 * 2f64.ln()).sqrt()),
@@ -121,7 +126,7 @@ fn straight_stripe_errors_with(params: &ExtractParams, s: f64, seed: u64) -> (f6
     let (peak, bg) = (200.0, 20.0);
     let camera = Camera::with_fov(w, h, 1.0);
     let mut ex = Extractor::new(params, &camera).expect("extractor");
-    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let background = flat_background(w, h, bg);
     let mut rng = Rng(seed);
     let mut all = Vec::new();
     let mut worst_bias: f64 = 0.0;
@@ -222,7 +227,7 @@ fn clipped_stripes_stay_close_at(s: f64, width_given: bool) {
     };
     let camera = Camera::with_fov(w, h, 1.0);
     let mut ex = Extractor::new(&params, &camera).expect("extractor");
-    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let background = flat_background(w, h, bg);
     let mut rng = Rng(0xc11f_0001);
     let mut all = Vec::new();
     let mut worst_bias: f64 = 0.0;
@@ -291,7 +296,7 @@ fn thin_and_wide_stripes_in_one_frame() {
         },
     ];
     let mut ex = auto_width_extractor(w, h, "red");
-    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let background = flat_background(w, h, bg);
     let frame = render(w, h, &flat(bg), &stripes, peak / 40.0, &mut Rng(0x7417));
     let curves = ex.extract(&frame, &background);
     let truths: [&dyn Fn(f64, f64) -> f64; 2] = [&d_thin, &d_wide];
@@ -337,7 +342,7 @@ fn white_core_with_a_coloured_fringe_is_found() {
         distance: &dist,
     };
     let mut ex = auto_width_extractor(w, h, "red-green");
-    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let background = flat_background(w, h, bg);
     let frame = render(w, h, &flat(bg), &[stripe], 1.0, &mut Rng(0x3417e));
     // Noise 1: a saturated core reads 255 on a real sensor, not 255 minus noise (with
     // noise 5 the clipped plateau, at the edge of what σ 4.5 can centre, breaks up).
@@ -409,7 +414,7 @@ fn circular_arc_follows_the_circle() {
     let dist = move |x: f64, y: f64| (x - cx).hypot(y - cy) - r;
     let camera = Camera::with_fov(w, h, 1.0);
     let mut ex = Extractor::new(&params_for(s, "red-green"), &camera).expect("extractor");
-    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let background = flat_background(w, h, bg);
     let stripe = Stripe {
         rgb: [0.1, 1.0, 0.2],
         peak,
@@ -507,7 +512,7 @@ fn crossing_stripes_stay_apart() {
     let (s, peak, bg) = (1.2, 180.0, 15.0);
     let camera = Camera::with_fov(w, h, 1.0);
     let mut ex = Extractor::new(&params_for(s, "red-green"), &camera).expect("extractor");
-    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
+    let background = flat_background(w, h, bg);
     // A cross rolled by 0.5 rad.
     let roll: f64 = 0.5;
     let (c0, s0) = (roll.cos(), roll.sin());
@@ -573,7 +578,6 @@ fn lone_pixels_of_the_other_colour_beside_a_stripe_leave_no_gap() {
     let (s, peak, bg) = (1.2, 180.0, 15.0);
     let camera = Camera::with_fov(w, h, 1.0);
     let mut ex = Extractor::new(&params_for(s, "red-green"), &camera).expect("extractor");
-    let background = Background::from_image(render(w, h, &flat(bg), &[], 0.0, &mut Rng(1)));
     let d_green = |_: f64, y: f64| y - 19.7;
     let stripe = Stripe {
         rgb: [0.05, 1.0, 0.05],
@@ -589,7 +593,7 @@ fn lone_pixels_of_the_other_colour_beside_a_stripe_leave_no_gap() {
         p.0[0] = (bg + 45.0) as u8;
         assert!(f64::from(p.0[1]) - bg < 16.0, "green {}", p.0[1]);
     }
-    let curves = ex.extract(&frame, &background);
+    let curves = ex.extract(&frame, &flat_background(w, h, bg));
     let green: Vec<Curve> = curves.iter().filter(|c| c.laser == 1).cloned().collect();
     let e = errors(&green, w, h, 6.0, &d_green);
     // Columns 6..=89: one point each.
