@@ -62,6 +62,7 @@ pub const BOUNDS: &[(&str, f64, f64)] = &[
     ("serve.epoch_duty", 0.01, 1.0),
     ("serve.status_interval_ms", 10.0, 3_600_000.0),
     ("serve.client_queue_mib", 0.0, 4096.0),
+    ("serve.stream_send_buffer_kib", 0.0, 65536.0),
     ("serve.stream_clients_max", 1.0, 4096.0),
     ("serve.drain_timeout_s", 0.0, 3600.0),
     ("serve.reconnect_max_backoff_s", 0.1, 3600.0),

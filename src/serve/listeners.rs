@@ -37,6 +37,8 @@ impl Listeners {
             stream_unix: none_if_empty(&cfg.stream_unix).map(Into::into),
             status_unix: none_if_empty(&cfg.status_socket).map(Into::into),
             max_clients: cfg.stream_clients_max,
+            send_buffer_bytes: u32::try_from(cfg.stream_send_buffer_kib.saturating_mul(1024))
+                .unwrap_or(u32::MAX),
         };
         let listeners = net::bind(&endpoints)?;
         if let Some(addr) = listeners.tcp_addr {

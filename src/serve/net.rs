@@ -466,6 +466,10 @@ pub struct Endpoints {
     /// Stream clients served at once (TCP and Unix together), and as many status
     /// clients: each holds a file descriptor, and the final cloud needs some too.
     pub max_clients: usize,
+    /// The kernel send buffer of each TCP stream client (`[serve]
+    /// stream_send_buffer_kib`; 0: the kernel's autotuning). What a client has not
+    /// read is bounded by this and the client queue together.
+    pub send_buffer_bytes: u32,
 }
 
 /// Connections over the cap: accepted and closed at once (so the backlog does not
@@ -573,6 +577,29 @@ pub struct Listeners {
     max_clients: usize,
 }
 
+/// The cloud stream's TCP listener at `addr`, its connections' kernel send buffer set
+/// to `send_buffer_bytes` (inherited from the listener; 0 leaves the kernel's
+/// autotuning, which on loopback grows to MiBs per client).
+fn bind_tcp(addr: &str, send_buffer_bytes: u32) -> std::io::Result<tokio::net::TcpListener> {
+    use std::net::ToSocketAddrs;
+    let at = addr
+        .to_socket_addrs()?
+        .next()
+        .ok_or_else(|| std::io::Error::new(std::io::ErrorKind::InvalidInput, "no address"))?;
+    let socket = if at.is_ipv4() {
+        tokio::net::TcpSocket::new_v4()?
+    } else {
+        tokio::net::TcpSocket::new_v6()?
+    };
+    // As `std::net::TcpListener::bind` does on Unix: a restart can rebind at once.
+    socket.set_reuseaddr(true)?;
+    if send_buffer_bytes > 0 {
+        socket.set_send_buffer_size(send_buffer_bytes)?;
+    }
+    socket.bind(at)?;
+    socket.listen(1024)
+}
+
 /// Binds every socket (before the pipeline starts, so a bad address fails early).
 pub fn bind(endpoints: &Endpoints) -> Result<Listeners, NetError> {
     let runtime = tokio::runtime::Builder::new_current_thread()
@@ -582,24 +609,12 @@ pub fn bind(endpoints: &Endpoints) -> Result<Listeners, NetError> {
     let _guard = runtime.enter();
     let mut paths = Vec::new();
     let tcp = match &endpoints.stream_tcp {
-        Some(addr) => {
-            let std_l = std::net::TcpListener::bind(addr).map_err(|source| NetError::Bind {
+        Some(addr) => Some(
+            bind_tcp(addr, endpoints.send_buffer_bytes).map_err(|source| NetError::Bind {
                 what: format!("tcp {addr}"),
                 source,
-            })?;
-            std_l
-                .set_nonblocking(true)
-                .map_err(|source| NetError::Bind {
-                    what: format!("tcp {addr}"),
-                    source,
-                })?;
-            Some(
-                tokio::net::TcpListener::from_std(std_l).map_err(|source| NetError::Bind {
-                    what: format!("tcp {addr}"),
-                    source,
-                })?,
-            )
-        }
+            })?,
+        ),
         None => None,
     };
     let tcp_addr = tcp.as_ref().and_then(|l| l.local_addr().ok());

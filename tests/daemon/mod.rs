@@ -230,13 +230,16 @@ fn stuck_client_does_not_stop_the_pipeline() {
     let config = dir.join("c.toml");
     std::fs::write(
         &config,
-        "[serve]\nclient_queue_mib = 0\ndrain_timeout_s = 1.0\n",
+        "[serve]\nclient_queue_mib = 0\nstream_send_buffer_kib = 64\ndrain_timeout_s = 1.0\n",
     )
     .expect("config");
     // The stuck client is on TCP with a receive buffer fixed small. On a Unix socket
     // the kernel holds up to the daemon's send buffer (about 208 KiB by default) for a
     // client that never reads: the fixture's whole stream can fit in it, and then the
-    // client is, rightly, never found stuck (this test failed so, now and then).
+    // client is, rightly, never found stuck (this test failed so, now and then). On
+    // TCP the daemon's send buffer is its `stream_send_buffer_kib` (128 KiB in all
+    // here): left to the kernel's autotuning, it grew to hold the final cloud (960 KB)
+    // on a slow machine, where fewer live epochs came before it.
     let addr = format!("127.0.0.1:{}", crate::util::free_port());
     // Real time, so that the client is surely connected before the cloud flows.
     let mut child = serve_with(dir, &dump(), "realtime", "", &addr)
