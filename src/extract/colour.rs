@@ -373,13 +373,14 @@ impl ColourLut {
         let (r, hole) = self.response_raw(laser, d, raw, own_clipped);
         let (own, foreign) = self.own_and_foreign(laser, d);
         if own_clipped {
+            // `response_raw` makes no hole where own is clipped: own plus foreign.
             let all_clipped = raw[..3].iter().all(|&v| v >= CLIP_LEVEL);
-            let r = if all_clipped && !hole {
+            let r = if all_clipped {
                 r.saturating_sub(foreign)
             } else {
                 r
             };
-            return (r, hole, SHARE_FULL);
+            return (r, false, SHARE_FULL);
         }
         let share = if own == 0 {
             0
