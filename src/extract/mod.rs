@@ -52,14 +52,14 @@
 //!
 //! # Without a laser-off frame
 //! [`Background::local`] has the extractor estimate each frame's own background
-//! ([`local`]: a morphological opening 17 px wide, its noise bias measured and added
-//! back). The excess over it still holds the surfaces' texture. A stripe is located
-//! on its laser's own channel, as against a laser-off frame, and a ridge point's
-//! strength is scaled by its chromatic share, the part of that channel beyond the
-//! largest other one ([`ColourLut::response_local`]: nothing for white or grey), except
-//! where its own channel is clipped and the others carry the core; a tile is activated
-//! only by pixels whose excess is purer in hue than the surface under them, and the
-//! faint-stripe activation (texture is ridge-like) is off.
+//! ([`local`]: a morphological opening 17 px wide, its noise bias measured per 64 px
+//! tile and added back). The excess over it still holds the surfaces' texture. A
+//! stripe is located on its laser's own channel, as against a laser-off frame, and a
+//! ridge point's strength is scaled by its chromatic share, the part of that channel
+//! beyond the largest other one ([`ColourLut::response_local`]: nothing for white or
+//! grey), except where its own channel is clipped and the others carry the core; a
+//! tile is activated only by pixels whose excess is purer in hue than the surface
+//! under them, and the faint-stripe activation (texture is ridge-like) is off.
 //!
 //! # Checks ([`ExtractStats`], `checks`)
 //! Points on a clipped own channel are counted, and a large share is warned about once;
