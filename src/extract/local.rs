@@ -135,9 +135,9 @@ fn add_local_bias(
                 let row = &frame[y * stride..(y + 1) * stride];
                 let orow = &opening[y * stride..(y + 1) * stride];
                 for x in (x0 + (y / BIAS_SAMPLE_ROWS) % 2..x1).step_by(2) {
-                    for c in 0..3 {
+                    for (c, hc) in hist.iter_mut().enumerate() {
                         let k = 3 * x + c;
-                        hist[c][row[k].saturating_sub(orow[k]) as usize] += 1;
+                        hc[row[k].saturating_sub(orow[k]) as usize] += 1;
                     }
                     count += 1;
                 }
