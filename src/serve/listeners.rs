@@ -32,22 +32,23 @@ impl Listeners {
         started: Instant,
     ) -> Result<Self, ServeError> {
         let none_if_empty = |s: &str| (!s.is_empty()).then(|| s.to_string());
+        let send_buffer_bytes =
+            u32::try_from(cfg.stream_send_buffer_kib.saturating_mul(1024)).unwrap_or(u32::MAX);
         let endpoints = net::Endpoints {
             stream_tcp: none_if_empty(&cfg.stream_tcp),
             stream_unix: none_if_empty(&cfg.stream_unix).map(Into::into),
             status_unix: none_if_empty(&cfg.status_socket).map(Into::into),
             max_clients: cfg.stream_clients_max,
-            send_buffer_bytes: u32::try_from(cfg.stream_send_buffer_kib.saturating_mul(1024))
-                .unwrap_or(u32::MAX),
+            send_buffer_bytes,
         };
         let listeners = net::bind(&endpoints)?;
         if let Some(addr) = listeners.tcp_addr {
             tracing::info!(%addr, "cloud stream listening");
         }
         let web = match http {
-            Some(l) => Some(web::from_std(l)?),
+            Some(l) => Some(web::from_std(l, send_buffer_bytes)?),
             None => none_if_empty(&cfg.http_listen)
-                .map(|a| web::bind(&a))
+                .map(|a| web::bind(&a, send_buffer_bytes))
                 .transpose()?,
         };
         if let Some(l) = &web {

@@ -13,7 +13,8 @@
 //! stream's `net`: browsers cost the stream clients nothing. Each page is a
 //! [`Subscription`](super::net::Subscription) to the cloud stream's hub, so a page
 //! has the stream's bounded queue and its rules: one that falls behind is
-//! resynchronised, then dropped; the solver and capture never wait for a page. At
+//! resynchronised, then dropped; the solver and capture never wait for a page; its
+//! kernel send buffer is `[serve] stream_send_buffer_kib`, as a stream client's. At
 //! most `[serve] http_clients_max` pages are connected at once; more get 503.
 //!
 //! Shutdown: when `serve` stops, the pages get the final epoch and `end` (for up to
@@ -68,17 +69,25 @@ pub struct WebListener {
     pub addr: SocketAddr,
 }
 
-/// Binds `addr` (before the pipeline starts, so a bad address fails early).
-pub fn bind(addr: &str) -> Result<WebListener, WebError> {
+/// Binds `addr` (before the pipeline starts, so a bad address fails early), each
+/// page's kernel send buffer `send_buffer_bytes` (see [`from_std`]).
+pub fn bind(addr: &str, send_buffer_bytes: u32) -> Result<WebListener, WebError> {
     let listener = std::net::TcpListener::bind(addr).map_err(|source| WebError::Bind {
         addr: addr.to_string(),
         source,
     })?;
-    from_std(listener)
+    from_std(listener, send_buffer_bytes)
 }
 
 /// Serves on a listener bound by the caller (the demo binds one to print its address).
-pub fn from_std(listener: std::net::TcpListener) -> Result<WebListener, WebError> {
+/// Its pages' kernel send buffer is `send_buffer_bytes` (`[serve]
+/// stream_send_buffer_kib`, as for the stream's TCP clients; 0 leaves the kernel's
+/// autotuning, which on loopback grows to MiBs a page, a queue that `client_queue_mib`
+/// does not bound). Set on the listener, which every accepted connection inherits.
+pub fn from_std(
+    listener: std::net::TcpListener,
+    send_buffer_bytes: u32,
+) -> Result<WebListener, WebError> {
     let addr = listener.local_addr().map_err(|source| WebError::Bind {
         addr: "?".into(),
         source,
@@ -87,6 +96,11 @@ pub fn from_std(listener: std::net::TcpListener) -> Result<WebListener, WebError
         addr: addr.to_string(),
         source,
     };
+    if send_buffer_bytes > 0 {
+        socket2::SockRef::from(&listener)
+            .set_send_buffer_size(send_buffer_bytes as usize)
+            .map_err(err)?;
+    }
     listener.set_nonblocking(true).map_err(err)?;
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -325,6 +339,22 @@ mod tests {
             .enable_all()
             .build()
             .expect("runtime")
+    }
+
+    /// Each page's connection has the send buffer of `[serve] stream_send_buffer_kib`
+    /// (Linux reports twice what was set), not the kernel's autotuned one, which on
+    /// loopback grows to MiBs that `client_queue_mib` does not bound.
+    #[test]
+    fn a_page_has_the_configured_send_buffer() {
+        let set = 48 * 1024;
+        let web = bind("127.0.0.1:0", set).expect("bind");
+        let client = std::net::TcpStream::connect(web.addr).expect("connect");
+        let (page, _) = web.runtime.block_on(web.listener.accept()).expect("accept");
+        let size = socket2::SockRef::from(&page)
+            .send_buffer_size()
+            .expect("SO_SNDBUF");
+        assert_eq!(size, 2 * set as usize, "a page's send buffer");
+        drop(client);
     }
 
     #[test]

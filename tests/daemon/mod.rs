@@ -1,7 +1,7 @@
 //! The real `crossline serve` process on recorded dumps: sockets, checkpoints, damaged
 //! input, workers.
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -265,8 +265,54 @@ fn stuck_client_does_not_stop_the_pipeline() {
     assert!(read_ply(&dir.join("cloud.ply")).expect("cloud").len() > 10_000);
 }
 
-/// A TCP client of the cloud stream whose receive buffer is 4 KiB (loopback TCP would
-/// otherwise grow it to MiBs and take in the whole scan).
+/// The live view's twin of the test above: a page that upgrades to the WebSocket and
+/// never reads is resynchronised or dropped, and the scan goes on. (Its kernel send
+/// buffer is `stream_send_buffer_kib` too, which `web`'s own tests check; on this
+/// fixture the page was found stuck with the kernel's autotuning as well, on a fast
+/// machine.)
+#[test]
+fn stuck_page_does_not_stop_the_pipeline() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path();
+    let config = dir.join("c.toml");
+    std::fs::write(
+        &config,
+        "[serve]\nclient_queue_mib = 0\nstream_send_buffer_kib = 64\ndrain_timeout_s = 1.0\n",
+    )
+    .expect("config");
+    let http = format!("127.0.0.1:{}", crate::util::free_port());
+    let mut child = serve_with(dir, &dump(), "realtime", &http, "")
+        .arg("--config")
+        .arg(&config)
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("spawn serve");
+    wait_for(&dir.join("cloud.sock"), Duration::from_secs(20));
+    // Upgrades (the handshake's answer is left unread, like the rest) and never reads.
+    let mut stuck = small_buffered_client(&http);
+    stuck
+        .write_all(
+            b"GET /ws HTTP/1.1\r\nHost: crossline\r\nUpgrade: websocket\r\n\
+              Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\
+              Sec-WebSocket-Version: 13\r\n\r\n",
+        )
+        .expect("upgrade request");
+    let status = wait_exit(&mut child, Duration::from_secs(60));
+    assert!(status.success(), "serve failed: {status}");
+    drop(stuck);
+    let r = report(dir);
+    assert_eq!(r["frames_processed"], 100, "{r}");
+    assert!(
+        r["stream_resyncs"].as_u64().unwrap_or(0)
+            + r["stream_dropped_clients"].as_u64().unwrap_or(0)
+            > 0,
+        "the stuck page was neither resynchronised nor dropped: {r}"
+    );
+    assert!(read_ply(&dir.join("cloud.ply")).expect("cloud").len() > 10_000);
+}
+
+/// A TCP client (of the cloud stream or the live view) whose receive buffer is 4 KiB
+/// (loopback TCP would otherwise grow it to MiBs and take in the whole scan).
 fn small_buffered_client(addr: &str) -> std::net::TcpStream {
     let sock =
         socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None).expect("a socket");
