@@ -225,14 +225,6 @@ fn one_and_two_workers_and_reconstruct_give_the_same_cloud() {
 
 #[test]
 fn stuck_client_does_not_stop_the_pipeline() {
-    let tmp = tempfile::tempdir().expect("tempdir");
-    let dir = tmp.path();
-    let config = dir.join("c.toml");
-    std::fs::write(
-        &config,
-        "[serve]\nclient_queue_mib = 0\nstream_send_buffer_kib = 64\ndrain_timeout_s = 1.0\n",
-    )
-    .expect("config");
     // The stuck client is on TCP with a receive buffer fixed small. On a Unix socket
     // the kernel holds up to the daemon's send buffer (about 208 KiB by default) for a
     // client that never reads: the fixture's whole stream can fit in it, and then the
@@ -240,29 +232,7 @@ fn stuck_client_does_not_stop_the_pipeline() {
     // TCP the daemon's send buffer is its `stream_send_buffer_kib` (128 KiB in all
     // here): left to the kernel's autotuning, it grew to hold the final cloud (960 KB)
     // on a slow machine, where fewer live epochs came before it.
-    let addr = format!("127.0.0.1:{}", crate::util::free_port());
-    // Real time, so that the client is surely connected before the cloud flows.
-    let mut child = serve_with(dir, &dump(), "realtime", "", &addr)
-        .arg("--config")
-        .arg(&config)
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("spawn serve");
-    wait_for(&dir.join("cloud.sock"), Duration::from_secs(20));
-    // Connects and never reads.
-    let stuck = small_buffered_client(&addr);
-    let status = wait_exit(&mut child, Duration::from_secs(60));
-    assert!(status.success(), "serve failed: {status}");
-    drop(stuck);
-    let r = report(dir);
-    assert_eq!(r["frames_processed"], 100, "{r}");
-    assert!(
-        r["stream_resyncs"].as_u64().unwrap_or(0)
-            + r["stream_dropped_clients"].as_u64().unwrap_or(0)
-            > 0,
-        "the stuck client was neither resynchronised nor dropped: {r}"
-    );
-    assert!(read_ply(&dir.join("cloud.ply")).expect("cloud").len() > 10_000);
+    a_stuck_reader_does_not_stop_the_pipeline(false, small_buffered_client);
 }
 
 /// The live view's twin of the test above: a page that upgrades to the WebSocket and
@@ -272,6 +242,27 @@ fn stuck_client_does_not_stop_the_pipeline() {
 /// machine.)
 #[test]
 fn stuck_page_does_not_stop_the_pipeline() {
+    a_stuck_reader_does_not_stop_the_pipeline(true, |addr| {
+        // Upgrades (the handshake's answer is left unread, like the rest).
+        let mut page = small_buffered_client(addr);
+        page.write_all(
+            b"GET /ws HTTP/1.1\r\nHost: crossline\r\nUpgrade: websocket\r\n\
+              Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\
+              Sec-WebSocket-Version: 13\r\n\r\n",
+        )
+        .expect("upgrade request");
+        page
+    });
+}
+
+/// Replays the fixture in real time (so that the reader is surely connected before the
+/// cloud flows) with a reader that `connect` makes on the stream's TCP port, or on the
+/// live view's (`page`), and that never reads: the replay ends, the reader was
+/// resynchronised or dropped, and the cloud is whole.
+fn a_stuck_reader_does_not_stop_the_pipeline(
+    page: bool,
+    connect: impl FnOnce(&str) -> std::net::TcpStream,
+) {
     let tmp = tempfile::tempdir().expect("tempdir");
     let dir = tmp.path();
     let config = dir.join("c.toml");
@@ -280,23 +271,20 @@ fn stuck_page_does_not_stop_the_pipeline() {
         "[serve]\nclient_queue_mib = 0\nstream_send_buffer_kib = 64\ndrain_timeout_s = 1.0\n",
     )
     .expect("config");
-    let http = format!("127.0.0.1:{}", crate::util::free_port());
-    let mut child = serve_with(dir, &dump(), "realtime", &http, "")
+    let addr = format!("127.0.0.1:{}", crate::util::free_port());
+    let (http, tcp) = if page {
+        (&addr[..], "")
+    } else {
+        ("", &addr[..])
+    };
+    let mut child = serve_with(dir, &dump(), "realtime", http, tcp)
         .arg("--config")
         .arg(&config)
         .stderr(Stdio::null())
         .spawn()
         .expect("spawn serve");
     wait_for(&dir.join("cloud.sock"), Duration::from_secs(20));
-    // Upgrades (the handshake's answer is left unread, like the rest) and never reads.
-    let mut stuck = small_buffered_client(&http);
-    stuck
-        .write_all(
-            b"GET /ws HTTP/1.1\r\nHost: crossline\r\nUpgrade: websocket\r\n\
-              Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\
-              Sec-WebSocket-Version: 13\r\n\r\n",
-        )
-        .expect("upgrade request");
+    let stuck = connect(&addr);
     let status = wait_exit(&mut child, Duration::from_secs(60));
     assert!(status.success(), "serve failed: {status}");
     drop(stuck);
@@ -306,7 +294,7 @@ fn stuck_page_does_not_stop_the_pipeline() {
         r["stream_resyncs"].as_u64().unwrap_or(0)
             + r["stream_dropped_clients"].as_u64().unwrap_or(0)
             > 0,
-        "the stuck page was neither resynchronised nor dropped: {r}"
+        "the stuck reader (page: {page}) was neither resynchronised nor dropped: {r}"
     );
     assert!(read_ply(&dir.join("cloud.ply")).expect("cloud").len() > 10_000);
 }
