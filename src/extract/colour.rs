@@ -362,6 +362,13 @@ impl ColourLut {
     /// core, and only the latter has a laser-coloured flank. There the response is own
     /// minus foreign (next to nothing), and a clipped own channel has the full share
     /// (its colour is lost to the clipping, not absent).
+    ///
+    /// A pixel is the other laser's (zeroed, and a hole) only where its other colour
+    /// stands `min_value` or more above its own channel, the level below which a
+    /// difference has no colour at all. The opening keeps what of a stripe's halo is
+    /// wider than its window, so the excess of the stripe's pale shoulders has less of
+    /// the laser's channel than the truth, and the noise then gives some of them the
+    /// other laser's hue; each such hole cut the stripe's points around it.
     #[inline]
     pub fn response_local(
         &self,
@@ -382,6 +389,11 @@ impl ColourLut {
             };
             return (r, false, SHARE_FULL);
         }
+        let (r, hole) = if hole && u16::from(foreign) < u16::from(own) + u16::from(self.min_value) {
+            (own, false)
+        } else {
+            (r, hole)
+        };
         let share = if own == 0 {
             0
         } else {

@@ -601,6 +601,40 @@ fn lone_pixels_of_the_other_colour_beside_a_stripe_leave_no_gap() {
     assert!(e.iter().all(|d| d.abs() < 0.2), "{e:?}");
 }
 
+/// Against a local background a bright stripe's pale shoulders, whose excess has about
+/// as much of the other laser's channel as of its own (crosstalk, and the halo the
+/// opening keeps), can read in the other laser's hue. Such a pixel is not the other
+/// laser's light, so it leaves no gap.
+#[test]
+fn pale_shoulders_in_the_other_colour_leave_no_gap_against_a_local_background() {
+    let (w, h) = (96u32, 40u32);
+    let (s, peak, bg) = (1.2, 180.0, 15.0);
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&params_for(s, "red-green"), &camera).expect("extractor");
+    let d_green = |_: f64, y: f64| y - 19.7;
+    let stripe = Stripe {
+        rgb: [0.05, 1.0, 0.05],
+        peak,
+        s,
+        distance: &d_green,
+    };
+    let mut frame = render(w, h, &flat(bg), &[stripe], peak / 40.0, &mut Rng(9));
+    // Every 8 px, 2 px beside the centre: red a little above the stripe's green there,
+    // by less than `min_value` (16).
+    for x in (4..w - 4).step_by(8) {
+        let p = frame.get_pixel_mut(x, 22);
+        let green = p.0[1];
+        assert!(f64::from(green) - bg >= 16.0, "green {green}");
+        p.0[0] = green.saturating_add(8);
+    }
+    let curves = ex.extract(&frame, &Background::local(w, h));
+    let green: Vec<Curve> = curves.iter().filter(|c| c.laser == 1).cloned().collect();
+    let e = errors(&green, w, h, 6.0, &d_green);
+    // Columns 6..=89: one point each.
+    assert!(e.len() >= 80, "{} points of 84", e.len());
+    assert!(e.iter().all(|d| d.abs() < 0.2), "{e:?}");
+}
+
 #[test]
 fn no_laser_gives_no_curves_and_wrong_size_is_an_error() {
     let camera = Camera::with_fov(40, 30, 1.0);
