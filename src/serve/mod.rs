@@ -263,6 +263,8 @@ pub struct ServeReport {
     pub live_solver: SolverCounts,
     pub stream_clients_total: u64,
     pub stream_resyncs: u64,
+    /// Stream clients and live-view pages dropped: fallen behind twice, or still
+    /// holding unsent stream when the drain (`[serve] drain_timeout_s`) ended.
     pub stream_dropped_clients: u64,
     pub cpu_seconds: f64,
     pub wall_seconds: f64,

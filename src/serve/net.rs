@@ -73,6 +73,9 @@ struct ClientQueue {
     resyncs: u32,
     /// Set when the client is to be told goodbye and closed.
     bye: Option<String>,
+    /// Counted as dropped when the drain ended with its stream unsent
+    /// ([`Hub::cut_off_undrained`]).
+    cut_off: bool,
 }
 
 struct Client {
@@ -301,6 +304,23 @@ impl Hub {
     pub fn drained(&self) -> bool {
         let s = lock(&self.state);
         s.clients.iter().all(|c| lock(&c.queue).queue.is_empty())
+    }
+
+    /// At the end of the drain: counts as dropped, once each, the clients that still
+    /// hold unsent stream (at least its `END`). They are closed with the cloud
+    /// unfinished, which is what a dropped client is; before, one that never read and
+    /// had only the final epoch queued (nothing came after it to find it behind) went
+    /// uncounted. The stream's and the live view's threads both call it; a client is
+    /// counted once.
+    pub fn cut_off_undrained(&self) {
+        let s = lock(&self.state);
+        for c in &s.clients {
+            let mut q = lock(&c.queue);
+            if !q.queue.is_empty() && !q.cut_off && q.bye.is_none() {
+                q.cut_off = true;
+                self.stats.dropped_clients.fetch_add(1, Ordering::Relaxed);
+            }
+        }
     }
 
     /// Nanoseconds since the hub started: the clock of the frames' capture times.
@@ -742,6 +762,7 @@ impl Listeners {
             while !hub.drained() && Instant::now() < deadline {
                 tokio::time::sleep(Duration::from_millis(20)).await;
             }
+            hub.cut_off_undrained();
             // One more status line carries the final state to listeners.
             tokio::time::sleep(Duration::from_millis(20)).await;
             tasks.abort_all();

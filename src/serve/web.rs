@@ -150,6 +150,7 @@ impl WebListener {
             while !hub.drained() && Instant::now() < deadline {
                 tokio::time::sleep(Duration::from_millis(20)).await;
             }
+            hub.cut_off_undrained();
             // The last messages leave the sessions' sockets.
             tokio::time::sleep(Duration::from_millis(50)).await;
             server.abort();
@@ -339,6 +340,31 @@ mod tests {
             .enable_all()
             .build()
             .expect("runtime")
+    }
+
+    /// A page that has read nothing when the drain ends, with only the final epoch
+    /// queued (too little to overflow its queue), is counted as dropped, once.
+    #[test]
+    fn a_page_cut_off_at_the_end_of_the_drain_is_counted_dropped_once() {
+        let hub = Arc::new(Hub::new("{}", 1 << 20, Instant::now()));
+        let sub = hub.subscribe();
+        hub.begin_epoch(1, EpochReason::Final);
+        hub.push_points(big_batch(1), crate::serve::net::Timed::No);
+        hub.end(4000);
+        assert!(!hub.drained());
+        hub.cut_off_undrained();
+        hub.cut_off_undrained();
+        assert_eq!(hub.stats.dropped_clients.load(Ordering::Relaxed), 1);
+        assert_eq!(hub.stats.resyncs.load(Ordering::Relaxed), 0);
+        drop(sub);
+        // A page that has read everything is not counted.
+        let rt = runtime();
+        let sub = hub.subscribe();
+        while !hub.drained() {
+            let _ = next(&rt, &sub);
+        }
+        hub.cut_off_undrained();
+        assert_eq!(hub.stats.dropped_clients.load(Ordering::Relaxed), 1);
     }
 
     /// Each page's connection has the send buffer of `[serve] stream_send_buffer_kib`
