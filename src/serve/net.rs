@@ -597,27 +597,15 @@ pub struct Listeners {
     max_clients: usize,
 }
 
-/// The cloud stream's TCP listener at `addr`, its connections' kernel send buffer set
-/// to `send_buffer_bytes` (inherited from the listener; 0 leaves the kernel's
-/// autotuning, which on loopback grows to MiBs per client).
-fn bind_tcp(addr: &str, send_buffer_bytes: u32) -> std::io::Result<tokio::net::TcpListener> {
-    use std::net::ToSocketAddrs;
-    let at = addr
-        .to_socket_addrs()?
-        .next()
-        .ok_or_else(|| std::io::Error::new(std::io::ErrorKind::InvalidInput, "no address"))?;
-    let socket = if at.is_ipv4() {
-        tokio::net::TcpSocket::new_v4()?
-    } else {
-        tokio::net::TcpSocket::new_v6()?
-    };
-    // As `std::net::TcpListener::bind` does on Unix: a restart can rebind at once.
-    socket.set_reuseaddr(true)?;
-    if send_buffer_bytes > 0 {
-        socket.set_send_buffer_size(send_buffer_bytes)?;
+/// Sets a TCP listener's kernel send buffer to `bytes`, which every connection it
+/// accepts inherits (0 leaves the kernel's autotuning, which on loopback grows to MiBs
+/// per client, a queue that `client_queue_mib` does not bound). The cloud stream's and
+/// the live view's listeners both go through here.
+pub(super) fn set_send_buffer(listener: &std::net::TcpListener, bytes: u32) -> std::io::Result<()> {
+    if bytes > 0 {
+        socket2::SockRef::from(listener).set_send_buffer_size(bytes as usize)?;
     }
-    socket.bind(at)?;
-    socket.listen(1024)
+    Ok(())
 }
 
 /// Binds every socket (before the pipeline starts, so a bad address fails early).
@@ -629,12 +617,16 @@ pub fn bind(endpoints: &Endpoints) -> Result<Listeners, NetError> {
     let _guard = runtime.enter();
     let mut paths = Vec::new();
     let tcp = match &endpoints.stream_tcp {
-        Some(addr) => Some(
-            bind_tcp(addr, endpoints.send_buffer_bytes).map_err(|source| NetError::Bind {
+        Some(addr) => {
+            let err = |source| NetError::Bind {
                 what: format!("tcp {addr}"),
                 source,
-            })?,
-        ),
+            };
+            let std_l = std::net::TcpListener::bind(addr).map_err(err)?;
+            set_send_buffer(&std_l, endpoints.send_buffer_bytes).map_err(err)?;
+            std_l.set_nonblocking(true).map_err(err)?;
+            Some(tokio::net::TcpListener::from_std(std_l).map_err(err)?)
+        }
         None => None,
     };
     let tcp_addr = tcp.as_ref().and_then(|l| l.local_addr().ok());
@@ -805,6 +797,31 @@ async fn write_line(sock: &mut tokio::net::UnixStream, line: &str) -> std::io::R
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Each stream client's connection has the send buffer of `[serve]
+    /// stream_send_buffer_kib` (Linux reports twice what was set), not the kernel's
+    /// autotuned one.
+    #[test]
+    fn a_stream_client_has_the_configured_send_buffer() {
+        let set = 48 * 1024;
+        let listeners = bind(&Endpoints {
+            stream_tcp: Some("127.0.0.1:0".into()),
+            stream_unix: None,
+            status_unix: None,
+            max_clients: 4,
+            send_buffer_bytes: set,
+        })
+        .expect("bind");
+        let addr = listeners.tcp_addr.expect("a TCP address");
+        let client = std::net::TcpStream::connect(addr).expect("connect");
+        let tcp = listeners.tcp.as_ref().expect("the TCP listener");
+        let (conn, _) = listeners.runtime.block_on(tcp.accept()).expect("accept");
+        let size = socket2::SockRef::from(&conn)
+            .send_buffer_size()
+            .expect("SO_SNDBUF");
+        assert_eq!(size, 2 * set as usize, "a stream client's send buffer");
+        drop(client);
+    }
 
     /// A bound socket is never reachable with a wider mode than it is given: while
     /// one is bound at the same path again and again, a thread watching that path

@@ -96,11 +96,7 @@ pub fn from_std(
         addr: addr.to_string(),
         source,
     };
-    if send_buffer_bytes > 0 {
-        socket2::SockRef::from(&listener)
-            .set_send_buffer_size(send_buffer_bytes as usize)
-            .map_err(err)?;
-    }
+    super::net::set_send_buffer(&listener, send_buffer_bytes).map_err(err)?;
     listener.set_nonblocking(true).map_err(err)?;
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
