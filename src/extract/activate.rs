@@ -128,7 +128,7 @@ impl Extractor {
         }
         // Stripes too faint for any pixel to reach `min_value`.
         self.dark.lift.clear();
-        if self.params.faint_activation && !self.yuyv_frame && !local {
+        if self.params.faint_activation && !self.yuyv_frame {
             self.faint.activate(
                 fr,
                 bg,
@@ -136,8 +136,10 @@ impl Extractor {
                 (tile, tiles_x),
                 self.lut.channels(),
                 &mut self.active,
+                local,
             );
-            if self.params.lift_darkened {
+            // A local background is the frame's own: nothing lies evenly below it.
+            if self.params.lift_darkened && !local {
                 self.dark.cells_x = self.faint.darkening(&mut self.dark.lift);
             }
         }

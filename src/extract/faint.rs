@@ -70,9 +70,14 @@ pub(super) struct FaintRidges {
     bh: usize,
     /// Per channel, per block: the sum of the difference over its `BLOCK²` pixels.
     sums: [Vec<i16>; 3],
+    /// Per block: the background's sum over it, per channel (the surface's colour);
+    /// measured against a local background only.
+    surface: Vec<[u16; 3]>,
     /// Per block: bit `c` = ridge across x in channel `c`, bit `3 + c` = across y.
     flags: Vec<u8>,
     row: Vec<i16>,
+    /// The background's four-row sums of one block row (a local background only).
+    brow: Vec<u16>,
     hist: Vec<u32>,
     /// Per region of `REGION` × `REGION` blocks, per channel: the ridge height a block
     /// there must reach.
@@ -84,7 +89,10 @@ pub(super) struct FaintRidges {
 impl FaintRidges {
     /// Marks in `active[k]` the tiles (of `tile` px, `tiles_x` per row) holding a
     /// continued ridge in one of laser `k`'s `channels`. `frame` and `background` are
-    /// packed RGB of `width × height`.
+    /// packed RGB of `width × height`; `local`: the background is the frame's own
+    /// local background, which leaves the surfaces' texture in the excess, so each
+    /// ridge's part in the surface's colour is taken out first
+    /// ([`Self::take_out_surface`]).
     #[allow(clippy::too_many_arguments)]
     pub fn activate(
         &mut self,
@@ -94,15 +102,16 @@ impl FaintRidges {
         (tile, tiles_x): (usize, usize),
         channels: &[[bool; 3]],
         active: &mut [Vec<bool>],
+        local: bool,
     ) {
         let (bw, bh) = (width / BLOCK, height / BLOCK);
         if bw < 2 * SIDE_BLOCKS + 1 || bh < 2 * SIDE_BLOCKS + 1 {
             return;
         }
-        self.sum_blocks(frame, background, width, bw, bh);
+        self.sum_blocks(frame, background, width, bw, bh, local);
         let threshold = self.threshold();
         self.region_thresholds(threshold);
-        self.mark_ridges();
+        self.mark_ridges(local);
         // A ridge that continues into the block rows above and below (across x) or the
         // block columns left and right (across y), within one block sideways.
         let (flags, bw) = (&self.flags, self.bw);
@@ -191,7 +200,15 @@ impl FaintRidges {
 
     /// Block sums of the signed difference, per channel: signed, so that the noise is
     /// the same where the frame is at its background and where a glow lifts it.
-    fn sum_blocks(&mut self, frame: &[u8], background: &[u8], width: usize, bw: usize, bh: usize) {
+    fn sum_blocks(
+        &mut self,
+        frame: &[u8],
+        background: &[u8],
+        width: usize,
+        bw: usize,
+        bh: usize,
+        surface: bool,
+    ) {
         if (self.bw, self.bh) != (bw, bh) {
             self.bw = bw;
             self.bh = bh;
@@ -200,7 +217,10 @@ impl FaintRidges {
             }
             self.flags = vec![0; bw * bh];
         }
+        self.surface
+            .resize(if surface { bw * bh } else { 0 }, [0; 3]);
         self.row.resize(3 * width, 0);
+        self.brow.resize(if surface { 3 * width } else { 0 }, 0);
         let stride = 3 * width;
         for by in 0..bh {
             let y = BLOCK * by;
@@ -223,6 +243,22 @@ impl FaintRidges {
                 let f = i16::from(f0[i]) + i16::from(f1[i]) + i16::from(f2[i]) + i16::from(f3[i]);
                 let b = i16::from(b0[i]) + i16::from(b1[i]) + i16::from(b2[i]) + i16::from(b3[i]);
                 row[i] = f - b;
+            }
+            if surface {
+                let brow = &mut self.brow[..stride];
+                for i in 0..stride {
+                    brow[i] =
+                        u16::from(b0[i]) + u16::from(b1[i]) + u16::from(b2[i]) + u16::from(b3[i]);
+                }
+                for (bx, px) in brow.chunks_exact(3 * BLOCK).take(bw).enumerate() {
+                    let mut sum = [0u16; 3];
+                    for p in px.chunks_exact(3) {
+                        for c in 0..3 {
+                            sum[c] += p[c];
+                        }
+                    }
+                    self.surface[by * bw + bx] = sum;
+                }
             }
             let out = by * bw;
             for (bx, px) in self.row.chunks_exact(3 * BLOCK).take(bw).enumerate() {
@@ -325,10 +361,46 @@ impl FaintRidges {
         }
     }
 
+    /// Against a local background: takes out of each block's ridge heights (across x
+    /// in `hx`, across y in `hy`, per channel) their part along the colour of the
+    /// surface under the block (`surface`, the background's block sums). A surface's
+    /// texture is its reflectance varying, so its ridges in the excess have the
+    /// surface's own colour, in every channel in proportion; a laser adds light of its
+    /// own hue, whatever the surface. What is left is the ridge that the surface's
+    /// colour does not explain: about nothing for texture, most of a stripe of another
+    /// hue (a faint blue stripe on a dark red box keeps nearly all of its height). A stripe
+    /// in the surface's own hue is left out: the frame alone does not tell it from the
+    /// texture.
+    fn take_out_surface(hx: &mut [Vec<i16>; 3], hy: &mut [Vec<i16>; 3], surface: &[[u16; 3]]) {
+        for h in [hx, hy] {
+            let [r, g, b] = h;
+            for (((r, g), b), s) in r
+                .iter_mut()
+                .zip(g.iter_mut())
+                .zip(b.iter_mut())
+                .zip(surface)
+            {
+                let v = [f32::from(*r), f32::from(*g), f32::from(*b)];
+                let s = s.map(f32::from);
+                let ss = s[0] * s[0] + s[1] * s[1] + s[2] * s[2];
+                // Only a ridge *along* the surface's colour is texture: a dip in it
+                // leaves the ridge as it is.
+                let along = if ss > 0.0 {
+                    ((v[0] * s[0] + v[1] * s[1] + v[2] * s[2]) / ss).max(0.0)
+                } else {
+                    0.0
+                };
+                *r = (v[0] - along * s[0]) as i16;
+                *g = (v[1] - along * s[1]) as i16;
+                *b = (v[2] - along * s[2]) as i16;
+            }
+        }
+    }
+
     /// Sets each block's ridge flags: across x and across y, in the channel where its
     /// ridge is highest. Blocks within `SIDE_BLOCKS` of the border have no two sides
     /// and are no ridges.
-    fn mark_ridges(&mut self) {
+    fn mark_ridges(&mut self, local: bool) {
         let (bw, bh) = (self.bw, self.bh);
         let k = SIDE_BLOCKS;
         let regions_x = bw.div_ceil(REGION);
@@ -364,6 +436,9 @@ impl FaintRidges {
                     *y = v.saturating_sub(up[j].max(down[j]));
                 }
             }
+            if local {
+                Self::take_out_surface(&mut hx, &mut hy, &self.surface[by * bw + k..][..inner]);
+            }
             let flags = &mut self.flags[by * bw + k..][..inner];
             let ([x0, x1, x2], [y0, y1, y2], [t0, t1, t2]) = (&hx, &hy, &th);
             for (j, f) in flags.iter_mut().enumerate() {
@@ -396,6 +471,18 @@ mod tests {
         seed: u64,
         add: impl Fn(f64, f64) -> [f64; 3],
     ) -> (Vec<u8>, Vec<u8>) {
+        frame_on([80.0; 3], w, h, noise, seed, add)
+    }
+
+    /// As [`frame`] over a background of colour `surface`.
+    fn frame_on(
+        surface: [f64; 3],
+        w: usize,
+        h: usize,
+        noise: f64,
+        seed: u64,
+        add: impl Fn(f64, f64) -> [f64; 3],
+    ) -> (Vec<u8>, Vec<u8>) {
         let mut state = seed;
         let mut gauss = move || {
             let mut u = || {
@@ -405,13 +492,15 @@ mod tests {
             let (a, b) = (u(), u());
             (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
         };
-        let background = vec![80u8; 3 * w * h];
+        let background: Vec<u8> = (0..w * h)
+            .flat_map(|_| surface.map(|v| v.round() as u8))
+            .collect();
         let mut f = background.clone();
         for y in 0..h {
             for x in 0..w {
                 let a = add(x as f64, y as f64);
                 for c in 0..3 {
-                    let v = 80.0 + a[c] + noise * gauss();
+                    let v = surface[c] + a[c] + noise * gauss();
                     f[3 * (y * w + x) + c] = v.round().clamp(0.0, 255.0) as u8;
                 }
             }
@@ -422,11 +511,22 @@ mod tests {
     const RED_GREEN: [[bool; 3]; 2] = [[true, false, false], [false, true, false]];
 
     fn activate(w: usize, h: usize, f: &[u8], b: &[u8]) -> (Vec<Vec<bool>>, f32) {
+        activate_against(w, h, f, b, false)
+    }
+
+    /// As [`activate`], `local` telling whether `b` is a local background.
+    fn activate_against(
+        w: usize,
+        h: usize,
+        f: &[u8],
+        b: &[u8],
+        local: bool,
+    ) -> (Vec<Vec<bool>>, f32) {
         let tile = 16;
         let (tx, ty) = (w.div_ceil(tile), h.div_ceil(tile));
         let mut active = vec![vec![false; tx * ty]; 2];
         let mut faint = FaintRidges::default();
-        faint.activate(f, b, (w, h), (tile, tx), &RED_GREEN, &mut active);
+        faint.activate(f, b, (w, h), (tile, tx), &RED_GREEN, &mut active, local);
         (active, faint.noise)
     }
 
@@ -453,7 +553,7 @@ mod tests {
         faint.region_threshold = (0..regions)
             .map(|_| [0; 3].map(|_: i16| (rng.next_f64() * 25.0) as i16))
             .collect();
-        faint.mark_ridges();
+        faint.mark_ridges(false);
         let k = SIDE_BLOCKS;
         let at = |c: usize, x: usize, y: usize| faint.sums[c][y * bw + x];
         let mut set = 0;
@@ -543,10 +643,10 @@ mod tests {
         // The same noise with the thresholds taken from a noise-free estimate is
         // ridges all over: the measured noise is what keeps it quiet.
         let mut faint = FaintRidges::default();
-        faint.sum_blocks(&f, &b, w, w / BLOCK, h / BLOCK);
+        faint.sum_blocks(&f, &b, w, w / BLOCK, h / BLOCK, false);
         faint.noise = 0.0;
         faint.region_thresholds(MIN_RIDGE_SUM);
-        faint.mark_ridges();
+        faint.mark_ridges(false);
         let ridges = faint.flags.iter().filter(|f| **f != 0).count();
         assert!(ridges > 200, "{ridges} ridge blocks at the floor threshold");
     }
@@ -588,11 +688,11 @@ mod tests {
         );
         // With the frame's threshold everywhere, the texture activates green widely.
         let mut faint = FaintRidges::default();
-        faint.sum_blocks(&f, &b, w, w / BLOCK, h / BLOCK);
+        faint.sum_blocks(&f, &b, w, w / BLOCK, h / BLOCK, false);
         let threshold = faint.threshold();
         faint.region_thresholds(threshold);
         faint.region_threshold.fill([threshold as i16; 3]);
-        faint.mark_ridges();
+        faint.mark_ridges(false);
         let green_ridges = faint
             .flags
             .iter()
@@ -601,6 +701,74 @@ mod tests {
         assert!(
             green_ridges > 500,
             "{green_ridges} green ridge blocks at the frame's threshold"
+        );
+    }
+
+    /// Against a local background a surface's texture stays in the excess: here a
+    /// dark red surface with a grain of thin lines 20 % brighter (a ridge in red of
+    /// six times the noise, continued across the frame), and a faint green stripe
+    /// (peak 12 grey levels, 6σ: the grain's green part raises green's threshold)
+    /// across it. Taken as it is, the grain activates red's tiles all over (325 of
+    /// 1,024); with the surface's colour taken out of each ridge, none, and the green
+    /// stripe's tiles are still found.
+    #[test]
+    fn texture_in_the_surfaces_colour_is_no_faint_stripe_against_a_local_background() {
+        let (w, h) = (512, 512);
+        let surface = [60.0, 18.0, 12.0];
+        let s = 2.5 / 2.3548;
+        let (f, b) = frame_on(surface, w, h, 2.0, 13, |x, y| {
+            // Lines 3 px wide every 37 px, slanted.
+            let grain = if (x + 0.3 * y).rem_euclid(37.0) < 3.0 {
+                0.2
+            } else {
+                0.0
+            };
+            let d = y - 300.0 + 0.6 * x;
+            let green = 12.0 * (-0.5 * d * d / (s * s)).exp();
+            [
+                grain * surface[0],
+                grain * surface[1] + green,
+                grain * surface[2],
+            ]
+        });
+        let tiles = w / 16;
+        let on_stripe = |t: usize| {
+            let (cx, cy) = (
+                (t % tiles) as f64 * 16.0 + 8.0,
+                (t / tiles) as f64 * 16.0 + 8.0,
+            );
+            ((cy - 300.0 + 0.6 * cx) / (1.0f64 + 0.36).sqrt()).abs() < 24.0
+        };
+        let red = |active: &[Vec<bool>]| active[0].iter().filter(|a| **a).count();
+        let (taken, _) = activate_against(w, h, &f, &b, false);
+        assert!(
+            red(&taken) > 100,
+            "{} red tiles from the grain as it is",
+            red(&taken)
+        );
+        let (active, _) = activate_against(w, h, &f, &b, true);
+        assert!(
+            red(&active) <= 4,
+            "{} red tiles from the grain",
+            red(&active)
+        );
+        let green_off = (0..tiles * tiles)
+            .filter(|&t| active[1][t] && !on_stripe(t))
+            .count();
+        assert!(green_off <= 4, "{green_off} green tiles off the stripe");
+        // The tiles the stripe's line passes through, away from the border.
+        let mut line = vec![false; tiles * tiles];
+        for x in 16..w - 16 {
+            let y = 300.0 - 0.6 * x as f64;
+            if (16.0..h as f64 - 16.0).contains(&y) {
+                line[(y / 16.0) as usize * tiles + x / 16] = true;
+            }
+        }
+        let on = line.iter().filter(|l| **l).count();
+        let hit = (0..tiles * tiles).filter(|&t| line[t] && active[1][t]).count();
+        assert!(
+            on >= 20 && hit * 10 >= on * 8,
+            "{hit} of {on} tiles of the stripe active"
         );
     }
 }

@@ -59,7 +59,8 @@
 //! beyond the largest other one ([`ColourLut::response_local`]: nothing for white or
 //! grey), except where its own channel is clipped and the others carry the core; a
 //! tile is activated only by pixels whose excess is purer in hue than the surface
-//! under them, and the faint-stripe activation (texture is ridge-like) is off.
+//! under them, and the faint-stripe activation counts only the part of a ridge that
+//! the surface's own colour does not explain (texture is ridge-like, in that colour).
 //!
 //! # Checks ([`ExtractStats`], `checks`)
 //! Points on a clipped own channel are counted, and a large share is warned about once;
