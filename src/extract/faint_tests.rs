@@ -4,19 +4,12 @@
 
 use super::*;
 
-/// A frame of `w × h` over a mid-grey background, with Gaussian noise of `noise`
-/// grey levels in every channel, plus `add(x, y) → [r, g, b]`.
-fn frame(
-    w: usize,
-    h: usize,
-    noise: f64,
-    seed: u64,
-    add: impl Fn(f64, f64) -> [f64; 3],
-) -> (Vec<u8>, Vec<u8>) {
-    frame_on([80.0; 3], w, h, noise, seed, add)
-}
+/// The mid-grey background of most tests.
+const GREY: [f64; 3] = [80.0; 3];
 
-/// As [`frame`] over a background of colour `surface`.
+/// A frame of `w × h` over a background of colour `surface`, with Gaussian noise of
+/// `noise` grey levels in every channel, plus `add(x, y) → [r, g, b]`; and the
+/// background.
 fn frame_on(
     surface: [f64; 3],
     w: usize,
@@ -134,7 +127,7 @@ fn faint_stripe_activates_its_tiles_at_any_angle() {
             let d = (x - 128.0) * sin - (y - 128.0) * cos;
             [8.0 * (-0.5 * d * d / (s * s)).exp(), 0.0, 0.0]
         };
-        let (f, b) = frame(w, h, 2.0, i as u64 + 1, stripe);
+        let (f, b) = frame_on(GREY, w, h, 2.0, i as u64 + 1, stripe);
         let (active, noise) = activate(w, h, &f, &b);
         // Block sums of 16 pixels of σ = 2: σ 8.
         assert!((7.0..9.0).contains(&noise), "noise {noise}");
@@ -163,7 +156,7 @@ fn faint_stripe_activates_its_tiles_at_any_angle() {
 #[test]
 fn noise_and_glow_are_no_ridges() {
     let (w, h) = (512, 512);
-    let (f, b) = frame(w, h, 2.0, 7, |x, _| {
+    let (f, b) = frame_on(GREY, w, h, 2.0, 7, |x, _| {
         let g = 20.0 * crate::simulate::render::normal_cdf((x - 256.0) / 1.0);
         [0.0, g, 0.0]
     });
@@ -192,7 +185,7 @@ fn noise_and_glow_are_no_ridges() {
 fn textured_glow_raises_its_regions_threshold() {
     let (w, h) = (512, 512);
     let s = 2.5 / 2.3548;
-    let (f, b) = frame(w, h, 2.0, 11, |x, y| {
+    let (f, b) = frame_on(GREY, w, h, 2.0, 11, |x, y| {
         let texture = 1.0 + 0.5 * (x / 3.0).sin() * (y / 4.0).sin();
         let glow = if x >= 256.0 { 30.0 * texture } else { 0.0 };
         let d = y - 200.0 - 0.1 * x;
