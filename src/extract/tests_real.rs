@@ -510,3 +510,37 @@ fn a_stripe_in_subsampled_chroma_is_located_on_its_own_channel() {
         "rms {local:.4} px against a local background, {truth:.4} px against the truth"
     );
 }
+
+/// A stripe too faint for any pixel to reach `min_value` (a green one of 11 grey
+/// levels, 5σ) across a dark red surface with a grain in its own colour (lines 3 px
+/// wide, 20 % brighter, every 37 px), blue and green lasers: against the local
+/// background the faint search finds it (no point without it), and the grain gives no
+/// curve. (Under a red laser the same grain would be a red line on a red surface, which
+/// one frame does not tell from a stripe.)
+#[test]
+fn a_faint_stripe_on_a_grained_surface_is_found_against_a_local_background() {
+    let (w, h) = (320u32, 240u32);
+    let surface = |x: f64, y: f64| {
+        let grain = if (x + 0.3 * y).rem_euclid(37.0) < 3.0 {
+            1.2
+        } else {
+            1.0
+        };
+        [60.0 * grain, 18.0 * grain, 12.0 * grain]
+    };
+    let line = (150.0, -0.25);
+    let stripe = Some((line.0, line.1, 1.2, 11.0, [0.0, 1.0, 0.0]));
+    let params = ExtractParams {
+        lasers: LaserColour::named(["blue", "green"]),
+        ..ExtractParams::default()
+    };
+    let camera = Camera::with_fov(w, h, 1.0);
+    let mut ex = Extractor::new(&params, &camera).expect("extractor");
+    let img = frame((w, h), &surface, stripe, 2.0);
+    let curves = ex.extract(&img, &Background::local(w, h));
+    let e = distance_errors(&curves, line, 20.0, w as f64);
+    let on = e.iter().filter(|d| d.abs() <= 1.0).count();
+    let off = e.iter().filter(|d| d.abs() > 2.0).count();
+    assert!(on >= 200, "{on} points on the stripe ({} in all)", e.len());
+    assert!(off <= 5, "{off} points off the stripe");
+}
