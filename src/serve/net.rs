@@ -323,6 +323,17 @@ impl Hub {
         }
     }
 
+    /// The end of a serving thread's drain (the stream's and the live view's): waits
+    /// until every client has taken the whole stream or `within` has passed, then
+    /// counts those still holding some as dropped ([`Self::cut_off_undrained`]).
+    pub async fn drain(&self, within: Duration) {
+        let deadline = Instant::now() + within;
+        while !self.drained() && Instant::now() < deadline {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        self.cut_off_undrained();
+    }
+
     /// Nanoseconds since the hub started: the clock of the frames' capture times.
     pub(super) fn now_nanos(&self) -> u64 {
         self.started.elapsed().as_nanos() as u64
@@ -750,11 +761,7 @@ impl Listeners {
                 });
             }
             stop.notified().await;
-            let deadline = Instant::now() + drain;
-            while !hub.drained() && Instant::now() < deadline {
-                tokio::time::sleep(Duration::from_millis(20)).await;
-            }
-            hub.cut_off_undrained();
+            hub.drain(drain).await;
             // One more status line carries the final state to listeners.
             tokio::time::sleep(Duration::from_millis(20)).await;
             tasks.abort_all();

@@ -26,7 +26,7 @@ pub mod protocol;
 
 use std::net::SocketAddr;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::State;
@@ -142,11 +142,7 @@ impl WebListener {
                 }
             });
             stop.notified().await;
-            let deadline = Instant::now() + drain;
-            while !hub.drained() && Instant::now() < deadline {
-                tokio::time::sleep(Duration::from_millis(20)).await;
-            }
-            hub.cut_off_undrained();
+            hub.drain(drain).await;
             // The last messages leave the sessions' sockets.
             tokio::time::sleep(Duration::from_millis(50)).await;
             server.abort();
@@ -308,6 +304,7 @@ async fn say_bye(socket: &mut WebSocket, reason: &str) {
 #[cfg(test)]
 mod tests {
     use std::sync::atomic::Ordering;
+    use std::time::Instant;
 
     use super::*;
     use crate::serve::stream::{self, EpochReason, Point};
