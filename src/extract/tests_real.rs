@@ -211,7 +211,7 @@ fn chroma_fringes_of_a_board_are_not_stripes() {
     };
     let mut ex = Extractor::new(&params, &camera).expect("extractor");
     let subsampled = |mut img: RgbImage| {
-        crate::simulate::realism::subsample_chroma(&mut img, (w as usize, h as usize));
+        crate::simulate::realism::subsample_chroma(&mut img, (w as usize, h as usize), false);
         img
     };
     let bare = subsampled(frame((w, h), &board, None, 2.0));
@@ -493,7 +493,7 @@ fn a_stripe_in_subsampled_chroma_is_located_on_its_own_channel() {
         let line = (y0, 0.07);
         let stripe = Some((line.0, line.1, 1.0, 120.0, [0.1, 1.0, 0.1]));
         let mut img = frame((w, h), &surface, stripe, 1.5);
-        crate::simulate::realism::subsample_chroma(&mut img, (w as usize, h as usize));
+        crate::simulate::realism::subsample_chroma(&mut img, (w as usize, h as usize), false);
         let e = distance_errors(
             &ex.extract(&img, &Background::local(w, h)),
             line,

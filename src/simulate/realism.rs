@@ -34,6 +34,11 @@ pub struct Realism {
     pub bloom: Option<(f64, f64)>,
     /// Average chroma over 2×2 blocks (YCbCr 4:2:0, as MJPEG cameras send).
     pub chroma_420: bool,
+    /// How the 4:2:0 chroma is rebuilt to full size: interpolated between the blocks'
+    /// centres as JPEG decoders do (libjpeg's and zune-jpeg's "fancy upsampling"), or,
+    /// when false, each block's chroma repeated over its four pixels (FFmpeg's
+    /// unscaled conversion to RGB, a YUYV pair's shared chroma).
+    pub chroma_interpolated: bool,
     /// Which of the two lasers are on.
     pub lasers_on: [bool; 2],
     /// A thin dark object (a hair, a cable) that moves: in the laser-off frame at one
@@ -59,6 +64,7 @@ impl Realism {
             crosstalk: 0.0,
             bloom: None,
             chroma_420: false,
+            chroma_interpolated: false,
             lasers_on: [true, true],
             moving_object: false,
         }
@@ -238,8 +244,12 @@ pub(crate) fn draw_moving_object(seed: u64, key: u64, img: &mut [u8], (w, h): (u
     }
 }
 
-/// YCbCr 4:2:0: the chroma of each 2×2 block averaged (BT.601 full range), luma kept.
-pub(crate) fn subsample_chroma(img: &mut [u8], (w, h): (usize, usize)) {
+/// YCbCr 4:2:0: the chroma of each 2×2 block averaged (BT.601 full range), luma kept;
+/// the blocks' chroma rebuilt at every pixel by repeating it, or, `interpolated`, as
+/// JPEG decoders do: per axis, 3/4 of the pixel's own block and 1/4 of the next block
+/// on its side (the blocks' centres lie between their two pixels), the image's edge
+/// repeating its last block.
+pub(crate) fn subsample_chroma(img: &mut [u8], (w, h): (usize, usize), interpolated: bool) {
     let ycc = |p: &[u8]| {
         let (r, g, b) = (p[0] as f32, p[1] as f32, p[2] as f32);
         let y = 0.299 * r + 0.587 * g + 0.114 * b;
@@ -249,32 +259,94 @@ pub(crate) fn subsample_chroma(img: &mut [u8], (w, h): (usize, usize)) {
             0.5 * r - 0.418_688 * g - 0.081_312 * b,
         )
     };
-    for by in (0..h).step_by(2) {
-        for bx in (0..w).step_by(2) {
-            let pixels: Vec<usize> = [(0, 0), (1, 0), (0, 1), (1, 1)]
-                .iter()
-                .filter(|(dx, dy)| bx + dx < w && by + dy < h)
-                .map(|(dx, dy)| 3 * ((by + dy) * w + bx + dx))
-                .collect();
-            let (mut cb, mut cr) = (0.0, 0.0);
-            for &i in &pixels {
-                let (_, u, v) = ycc(&img[i..i + 3]);
-                cb += u;
-                cr += v;
-            }
-            let n = pixels.len() as f32;
-            let (cb, cr) = (cb / n, cr / n);
-            for &i in &pixels {
-                let (y, _, _) = ycc(&img[i..i + 3]);
-                let rgb = [
-                    y + 1.402 * cr,
-                    y - 0.344_136 * cb - 0.714_136 * cr,
-                    y + 1.772 * cb,
-                ];
-                for c in 0..3 {
-                    img[i + c] = rgb[c].round().clamp(0.0, 255.0) as u8;
+    let (bw, bh) = (w.div_ceil(2), h.div_ceil(2));
+    let mut blocks = vec![[0f32; 2]; bw * bh];
+    for by in 0..bh {
+        for bx in 0..bw {
+            let (mut cb, mut cr, mut n) = (0.0, 0.0, 0.0);
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let (x, y) = (2 * bx + dx, 2 * by + dy);
+                if x < w && y < h {
+                    let i = 3 * (y * w + x);
+                    let (_, u, v) = ycc(&img[i..i + 3]);
+                    cb += u;
+                    cr += v;
+                    n += 1.0;
                 }
             }
+            blocks[by * bw + bx] = [cb / n, cr / n];
         }
+    }
+    // Per pixel coordinate: its block and the neighbouring block on its side, with
+    // their weights.
+    let taps = |p: usize, blocks: usize| -> [(usize, f32); 2] {
+        let b = p / 2;
+        if !interpolated {
+            return [(b, 1.0), (b, 0.0)];
+        }
+        let next = if p.is_multiple_of(2) {
+            b.saturating_sub(1)
+        } else {
+            (b + 1).min(blocks - 1)
+        };
+        [(b, 0.75), (next, 0.25)]
+    };
+    for y in 0..h {
+        for x in 0..w {
+            let (mut cb, mut cr) = (0.0, 0.0);
+            for (by, wy) in taps(y, bh) {
+                for (bx, wx) in taps(x, bw) {
+                    let [u, v] = blocks[by * bw + bx];
+                    cb += wx * wy * u;
+                    cr += wx * wy * v;
+                }
+            }
+            let i = 3 * (y * w + x);
+            let (l, _, _) = ycc(&img[i..i + 3]);
+            let rgb = [
+                l + 1.402 * cr,
+                l - 0.344_136 * cb - 0.714_136 * cr,
+                l + 1.772 * cb,
+            ];
+            for c in 0..3 {
+                img[i + c] = rgb[c].round().clamp(0.0, 255.0) as u8;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::subsample_chroma;
+
+    /// A frame whose red rises along x by `step` grey levels a pixel (a chroma ramp).
+    fn ramp(w: usize, h: usize, step: f32) -> Vec<u8> {
+        (0..w * h)
+            .flat_map(|i| [(40.0 + step * (i % w) as f32).round() as u8, 90, 60])
+            .collect()
+    }
+
+    #[test]
+    fn the_interpolated_rebuild_keeps_a_chroma_ramp_and_the_repeated_one_steps_it() {
+        let (w, h) = (32, 4);
+        let truth = ramp(w, h, 4.0);
+        let red = |img: &[u8]| -> Vec<i32> { (0..w).map(|x| img[3 * (w + x)] as i32).collect() };
+        let mut interpolated = truth.clone();
+        subsample_chroma(&mut interpolated, (w, h), true);
+        let mut repeated = truth.clone();
+        subsample_chroma(&mut repeated, (w, h), false);
+        let (t, i, r) = (red(&truth), red(&interpolated), red(&repeated));
+        // Away from the edges (which repeat the last block), interpolation between the
+        // blocks' centres gives a linear ramp back, within rounding.
+        for x in 2..w - 2 {
+            assert!((i[x] - t[x]).abs() <= 1, "x {x}: {} against {}", i[x], t[x]);
+        }
+        // Repeating a block's chroma over its pixels makes pairs equal in chroma, so
+        // red steps by pairs: half a step low on one pixel, half high on the other.
+        let off: i32 = (2..w - 2).map(|x| (r[x] - t[x]).abs()).sum();
+        assert!(
+            off >= (w as i32 - 4) / 2,
+            "repeated rebuild off by {off} in all"
+        );
     }
 }

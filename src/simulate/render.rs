@@ -491,11 +491,13 @@ impl Simulator {
         if r.moving_object {
             realism::draw_moving_object(self.params.seed, key, buf, (w, h));
         }
-        if r.chroma_420 {
-            realism::subsample_chroma(buf, (w, h));
-        }
         if let Some(q) = self.params.jpeg_quality {
             jpeg_round_trip(img, q);
+        }
+        // After the JPEG round trip (which is 4:4:4): a 4:2:0 JPEG's chroma is
+        // quantised at block resolution and then rebuilt, so the rebuild comes last.
+        if r.chroma_420 {
+            realism::subsample_chroma(&mut *img, (w, h), r.chroma_interpolated);
         }
     }
 

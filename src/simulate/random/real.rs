@@ -18,7 +18,8 @@ use crate::simulate::scene::Medium;
 /// - the lasers 1-3 × brighter (the own channel clips above ~1.3), crosstalk into the
 ///   other channels of 2-10 %, a blooming halo (1/3) of 5-15 % of the peak and std
 ///   4-10 px;
-/// - 4:2:0 chroma (1/2);
+/// - 4:2:0 chroma (1/2), rebuilt as JPEG decoders do (interpolated) or by repeating
+///   each block (1/2 each);
 /// - a moving dark strand (1/3) between the background and the sweep.
 ///
 /// Under water the scene is left as drawn (its light is its own).
@@ -67,6 +68,8 @@ pub fn draw_realistic(seed: u64, frames: usize) -> DrawnScan {
     }
     r.chroma_420 = rng.chance(0.5);
     r.moving_object = rng.chance(1.0 / 3.0);
+    // Drawn last, so that the draws above are those of the scans before it existed.
+    r.chroma_interpolated = r.chroma_420 && rng.chance(0.5);
     drawn.params.realism = r;
     drawn
 }
