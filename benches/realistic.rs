@@ -9,7 +9,9 @@
 //! set how many scans are drawn (seeds 1..; under water skipped) and frames of each;
 //! `REALISTIC_POLICY` (one of the names below) runs that policy alone, for profiling;
 //! `REALISTIC_DUMP=DIR` writes each frame, its laser-off frame, its local background,
-//! its lit mask, its curves and its stray points there;
+//! its lit mask, its curves, its stray points and each point's signed distance from
+//! its stripe (`*-err.txt`: curve, laser, x, y, distance px, strength; the chroma
+//! phase study of `docs/extraction.md` reads it) there;
 //! `REALISTIC_VERBOSE=1` prints each frame's scores (its scan and index, recall, stray
 //! points, median error) and the extractor's counters;
 //! `REALISTIC_REPEAT=N` extracts each frame N times, so that a profile of the bench is
@@ -133,6 +135,31 @@ fn main() {
                         })
                         .map(|(l, p)| format!("{l} {} {}", p[0], p[1]))
                         .collect();
+                    // Each point's signed distance from its own stripe.
+                    let errs: Vec<String> = curves
+                        .iter()
+                        .enumerate()
+                        .flat_map(|(ci, c)| {
+                            c.points_px
+                                .iter()
+                                .zip(&c.strength)
+                                .map(move |(p, s)| (ci, c.laser, p, s))
+                        })
+                        .filter_map(|(ci, l, p, s)| {
+                            let e = sim.stripe_distance_px(
+                                &pose,
+                                l as usize,
+                                p[0] as f64,
+                                p[1] as f64,
+                            )?;
+                            Some(format!("{ci} {l} {} {} {e} {s}", p[0], p[1]))
+                        })
+                        .collect();
+                    std::fs::write(
+                        dir.join(format!("{stem}-{}-err.txt", policies[k])),
+                        errs.join("\n"),
+                    )
+                    .ok();
                     std::fs::write(
                         dir.join(format!("{stem}-{}-stray.txt", policies[k])),
                         stray.join("\n"),
@@ -146,7 +173,13 @@ fn main() {
                 }
             }
         }
-        eprintln!("scan {seed}: {}", drawn.summary);
+        let r = &drawn.params.realism;
+        let chroma = match (r.chroma_420, r.chroma_interpolated) {
+            (false, _) => "4:4:4",
+            (true, false) => "4:2:0 repeated",
+            (true, true) => "4:2:0 interpolated",
+        };
+        eprintln!("scan {seed}: {} | {chroma}", drawn.summary);
     }
     let per_1080p = 1920.0 * 1080.0 / 1e6;
     println!("{done} realistic scans x {frames} frames (air), one core");

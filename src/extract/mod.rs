@@ -113,6 +113,7 @@
 mod activate;
 pub mod background;
 mod checks;
+pub mod chroma;
 pub mod colour;
 mod detect;
 mod faint;
@@ -334,6 +335,10 @@ impl ExtractParams {
 /// up to one tile further, so a faint tail is followed for up to this many tiles.
 const MAX_FOLLOW_ROUNDS: usize = 32;
 
+/// Frames read for their chroma sampling before it is taken as full
+/// ([`Extractor::chroma_sampling`]).
+const SAMPLING_TRIES: u32 = 30;
+
 /// Smoothing scales (px) of the automatic width: each takes the stripes up to
 /// `2√3 σ` wide (Steger's bar condition `σ ≥ w_half / √3`), so FWHM ≤ 3.5, 4.5, 5.9,
 /// 7.6, 9.7, 12.1 and 15.6 px; wider stripes get the last scale. Steps of ~1.3 keep
@@ -502,6 +507,13 @@ pub struct Extractor {
     local_active: bool,
     presence: checks::Presence,
     repeat_scratch: Vec<u8>,
+    /// How the frames' chroma was sampled, as far as the frames have told
+    /// ([`Self::chroma_sampling`]); the frames read for it so far.
+    sampling: chroma::Sampling,
+    sampling_tries: u32,
+    /// Per ridge point of the laser being linked: its move off the chroma rebuild's
+    /// pull ([`chroma::point_moves`]); empty for full chroma.
+    chroma_moves: Vec<f32>,
 }
 
 impl Extractor {
@@ -549,6 +561,9 @@ impl Extractor {
             local_active: false,
             presence: checks::Presence::default(),
             repeat_scratch: Vec::new(),
+            sampling: chroma::Sampling::UNKNOWN,
+            sampling_tries: 0,
+            chroma_moves: Vec::new(),
         })
     }
 
@@ -616,6 +631,7 @@ impl Extractor {
         background: &RgbImage,
     ) -> Result<Vec<Curve>, ExtractError> {
         self.activate_rgb(src.frame(), background, self.local_active);
+        let sampling = self.chroma_sampling(src.frame());
         let mut curves = Vec::new();
         self.stats = ExtractStats::default();
         self.detector.texture_kept = self.local_active;
@@ -663,8 +679,15 @@ impl Extractor {
                 curves.truncate(first);
                 self.link_into(laser as u8, &mut curves, false);
             }
-            // Linked once more, the points moved off the glow under them: the rounds
-            // above only need where the curves end.
+            // Linked once more, the points moved off the glow under them and off the
+            // chroma rebuild's pull: the rounds above only need where the curves end.
+            chroma::point_moves(
+                &sampling,
+                &self.detector.points,
+                (src.frame(), background),
+                self.params.lasers[laser].channels(),
+                &mut self.chroma_moves,
+            );
             curves.truncate(first);
             self.link_into(laser as u8, &mut curves, true);
             self.stats.round_tiles += self.detector.round_tiles;
@@ -686,6 +709,23 @@ impl Extractor {
         self.presence
             .observe(&self.params.lasers, &curves, self.stats.clipped_points);
         Ok(curves)
+    }
+
+    /// The chroma sampling of the frames ([`chroma::Sampling::read`]): each axis read
+    /// off the frames until one tells, then kept (a camera does not change it); after
+    /// [`SAMPLING_TRIES`] frames, an axis not told is taken as full.
+    fn chroma_sampling(&mut self, frame: &RgbImage) -> chroma::Sampling {
+        if !self.sampling.is_told() {
+            self.sampling.read(frame);
+            self.sampling_tries += 1;
+            if self.sampling_tries >= SAMPLING_TRIES {
+                self.sampling.settle();
+            }
+            if self.sampling.is_told() {
+                tracing::debug!("chroma sampling: {:?}", self.sampling);
+            }
+        }
+        self.sampling
     }
 
     /// Whether the extractor (or one sharing its warnings) has told that one of its
@@ -715,6 +755,7 @@ impl Extractor {
         let params = &self.params;
         let undistorted_camera = self.undistorted_camera;
         let cache = &mut self.normalised;
+        let chroma_moves = &self.chroma_moves;
         cache.resize(det.points.len(), Normalised::Unknown);
         self.linker.link(
             &det.points,
@@ -735,11 +776,16 @@ impl Extractor {
                     strength: Vec::with_capacity(chain.len()),
                     polyline: Vec::new(),
                 };
-                let moves = if glow {
+                let mut moves = if glow {
                     glow::glow_moves(det, chain)
                 } else {
                     vec![0.0; chain.len()]
                 };
+                if glow && !chroma_moves.is_empty() {
+                    for (m, &i) in moves.iter_mut().zip(chain) {
+                        *m += chroma_moves[i as usize];
+                    }
+                }
                 for (&i, &shift) in chain.iter().zip(&moves) {
                     let mut p = det.points[i as usize];
                     p.x += shift * p.nx;
@@ -912,5 +958,7 @@ fn response_rgb<'a>(
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_chroma;
 #[cfg(test)]
 mod tests_real;
