@@ -3,7 +3,7 @@
 //! full-resolution chroma.
 
 use super::chroma::{Rebuild, Sampling};
-use super::tests_real::{distance_errors, frame};
+use super::tests_real::{distance_errors, frame, red_green_extractor};
 use super::*;
 use crate::simulate::realism::subsample_chroma;
 
@@ -63,20 +63,13 @@ fn the_chroma_rebuild_is_read_off_the_frame() {
 }
 
 /// Per phase of the 2 px grid (16 steps), the median signed error (px) of the points
-/// on a horizontal red stripe of Gaussian std `s`, the frames'
-/// chroma rebuilt as `rebuild`, against a laser-off frame or a `local` background;
-/// `sampling`, when given, replaces what the extractor reads off the frames.
+/// on a horizontal red stripe of Gaussian std `s`, the frames' chroma rebuilt as
+/// `rebuild`, against a laser-off frame or a `local` background; `sampling`, when
+/// given, replaces what the extractor reads off the frames.
 fn phase_errors(rebuild: Rebuild, s: f64, sampling: Option<Sampling>, local: bool) -> Vec<f64> {
     let (w, h) = (320u32, 120u32);
     let surface = |_: f64, _: f64| [40.0, 40.0, 40.0];
-    let mut ex = Extractor::new(
-        &ExtractParams {
-            lasers: LaserColour::named(["red", "green"]),
-            ..ExtractParams::default()
-        },
-        &Camera::with_fov(w, h, 1.0),
-    )
-    .expect("extractor");
+    let mut ex = red_green_extractor(w, h);
     if let Some(sampling) = sampling {
         ex.sampling = sampling;
     }

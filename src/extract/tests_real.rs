@@ -57,6 +57,16 @@ pub(super) fn distance_errors(
         .collect()
 }
 
+/// An extractor for a red and a green laser, with the default settings, for frames of
+/// `w × h` from a camera without distortion.
+pub(super) fn red_green_extractor(w: u32, h: u32) -> Extractor {
+    let params = ExtractParams {
+        lasers: LaserColour::named(["red", "green"]),
+        ..ExtractParams::default()
+    };
+    Extractor::new(&params, &Camera::with_fov(w, h, 1.0)).expect("extractor")
+}
+
 /// A checkerboard of 37 px squares, `light` and `dark`, as a surface for [`frame`].
 fn checkerboard(light: [f64; 3], dark: [f64; 3]) -> impl Fn(f64, f64) -> [f64; 3] {
     move |x, y| {
@@ -483,14 +493,7 @@ fn assert_realistic_frame(seed: u64, frame: usize, most: f64, recall: f64) {
 fn a_stripe_in_subsampled_chroma_is_located_on_its_own_channel() {
     let (w, h) = (320u32, 120u32);
     let rms = |e: &[f64]| (e.iter().map(|e| e * e).sum::<f64>() / e.len() as f64).sqrt();
-    let mut ex = Extractor::new(
-        &ExtractParams {
-            lasers: LaserColour::named(["red", "green"]),
-            ..ExtractParams::default()
-        },
-        &Camera::with_fov(w, h, 1.0),
-    )
-    .expect("extractor");
+    let mut ex = red_green_extractor(w, h);
     let surface = |_: f64, _: f64| [60.0; 3];
     // Which channel locates the stripe, with the rebuild's pull left in for both
     // (its model is held by `tests_chroma`).
