@@ -26,9 +26,11 @@
 //!   ([`ShiftTable`]) as a sine series of the phase; along the line, the detector's
 //!   window averages it over the phases the line passes through.
 //!
-//! Assumed: the encoder averages each block (libjpeg, and the ISPs we know of) and
-//! sites its chroma at the block's centre (JFIF). A camera that sites it on the first
-//! pixel (MPEG-2 4:2:2) would need its own table; none is claimed here.
+//! Assumed: the encoder averages each block (libjpeg does) and sites its chroma at the
+//! block's centre (JFIF). A camera that sites it on the first pixel (MPEG-2 4:2:2)
+//! would need its own table; none is claimed here. The extractor keeps what a frame
+//! told it ([`super::Extractor`]), so with several workers on a subsampled recording
+//! the frames before a worker's first telling one get no move (docs/extraction.md).
 
 use image::RgbImage;
 
