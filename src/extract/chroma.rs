@@ -29,7 +29,7 @@
 //! Assumed: the encoder averages each block (libjpeg does) and sites its chroma at the
 //! block's centre (JFIF). A camera that sites it on the first pixel (MPEG-2 4:2:2)
 //! would need its own table; none is claimed here. The extractor keeps what a frame
-//! told it ([`super::Extractor`]), so with several workers on a subsampled recording
+//! told it ([`Reader`]), so with several workers on a subsampled recording
 //! the frames before a worker's first telling one get no move (docs/extraction.md).
 
 use image::RgbImage;
@@ -82,6 +82,46 @@ impl Sampling {
     /// The axes not yet told taken as full.
     pub fn settle(&mut self) {
         self.told = [true; 2];
+    }
+}
+
+/// Frames read for their chroma sampling before an axis they did not tell is taken as
+/// full ([`Reader::sampling`]).
+const SAMPLING_TRIES: u32 = 30;
+
+/// An extractor's reading of its frames' chroma sampling: kept once told (a camera
+/// does not change it), read off each frame until then.
+#[derive(Clone, Debug)]
+pub(super) struct Reader {
+    pub(super) sampling: Sampling,
+    tries: u32,
+}
+
+impl Default for Reader {
+    fn default() -> Self {
+        Self {
+            sampling: Sampling::UNKNOWN,
+            tries: 0,
+        }
+    }
+}
+
+impl Reader {
+    /// The sampling to take `frame` as having ([`Sampling::read`]): each axis read off
+    /// the frames until one tells; after [`SAMPLING_TRIES`] frames, an axis not told is
+    /// taken as full.
+    pub(super) fn sampling(&mut self, frame: &RgbImage) -> Sampling {
+        if !self.sampling.is_told() {
+            self.sampling.read(frame);
+            self.tries += 1;
+            if self.tries >= SAMPLING_TRIES {
+                self.sampling.settle();
+            }
+            if self.sampling.is_told() {
+                tracing::debug!("chroma sampling: {:?}", self.sampling);
+            }
+        }
+        self.sampling
     }
 }
 

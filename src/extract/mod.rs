@@ -335,10 +335,6 @@ impl ExtractParams {
 /// up to one tile further, so a faint tail is followed for up to this many tiles.
 const MAX_FOLLOW_ROUNDS: usize = 32;
 
-/// Frames read for their chroma sampling before it is taken as full
-/// ([`Extractor::chroma_sampling`]).
-const SAMPLING_TRIES: u32 = 30;
-
 /// Smoothing scales (px) of the automatic width: each takes the stripes up to
 /// `2√3 σ` wide (Steger's bar condition `σ ≥ w_half / √3`), so FWHM ≤ 3.5, 4.5, 5.9,
 /// 7.6, 9.7, 12.1 and 15.6 px; wider stripes get the last scale. Steps of ~1.3 keep
@@ -507,10 +503,8 @@ pub struct Extractor {
     local_active: bool,
     presence: checks::Presence,
     repeat_scratch: Vec<u8>,
-    /// How the frames' chroma was sampled, as far as the frames have told
-    /// ([`Self::chroma_sampling`]); the frames read for it so far.
-    sampling: chroma::Sampling,
-    sampling_tries: u32,
+    /// How the frames' chroma was sampled, as far as the frames have told.
+    sampling: chroma::Reader,
     /// Per ridge point of the laser being linked: its move off the chroma rebuild's
     /// pull ([`chroma::point_moves`]); empty for full chroma.
     chroma_moves: Vec<f32>,
@@ -561,8 +555,7 @@ impl Extractor {
             local_active: false,
             presence: checks::Presence::default(),
             repeat_scratch: Vec::new(),
-            sampling: chroma::Sampling::UNKNOWN,
-            sampling_tries: 0,
+            sampling: chroma::Reader::default(),
             chroma_moves: Vec::new(),
         })
     }
@@ -631,7 +624,7 @@ impl Extractor {
         background: &RgbImage,
     ) -> Result<Vec<Curve>, ExtractError> {
         self.activate_rgb(src.frame(), background, self.local_active);
-        let sampling = self.chroma_sampling(src.frame());
+        let sampling = self.sampling.sampling(src.frame());
         let mut curves = Vec::new();
         self.stats = ExtractStats::default();
         self.detector.texture_kept = self.local_active;
@@ -709,23 +702,6 @@ impl Extractor {
         self.presence
             .observe(&self.params.lasers, &curves, self.stats.clipped_points);
         Ok(curves)
-    }
-
-    /// The chroma sampling of the frames ([`chroma::Sampling::read`]): each axis read
-    /// off the frames until one tells, then kept (a camera does not change it); after
-    /// [`SAMPLING_TRIES`] frames, an axis not told is taken as full.
-    fn chroma_sampling(&mut self, frame: &RgbImage) -> chroma::Sampling {
-        if !self.sampling.is_told() {
-            self.sampling.read(frame);
-            self.sampling_tries += 1;
-            if self.sampling_tries >= SAMPLING_TRIES {
-                self.sampling.settle();
-            }
-            if self.sampling.is_told() {
-                tracing::debug!("chroma sampling: {:?}", self.sampling);
-            }
-        }
-        self.sampling
     }
 
     /// Whether the extractor (or one sharing its warnings) has told that one of its

@@ -71,7 +71,7 @@ fn phase_errors(rebuild: Rebuild, s: f64, sampling: Option<Sampling>, local: boo
     let surface = |_: f64, _: f64| [40.0, 40.0, 40.0];
     let mut ex = red_green_extractor(w, h);
     if let Some(sampling) = sampling {
-        ex.sampling = sampling;
+        ex.sampling.sampling = sampling;
     }
     let off = if local {
         Background::local(w, h)

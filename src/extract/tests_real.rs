@@ -497,7 +497,7 @@ fn a_stripe_in_subsampled_chroma_is_located_on_its_own_channel() {
     let surface = |_: f64, _: f64| [60.0; 3];
     // Which channel locates the stripe, with the rebuild's pull left in for both
     // (its model is held by `tests_chroma`).
-    ex.sampling.settle();
+    ex.sampling.sampling.settle();
     let off = Background::from_image(frame((w, h), &surface, None, 0.0));
     let (mut local, mut truth) = (Vec::new(), Vec::new());
     for y0 in [40.0, 40.25, 40.5, 40.75] {
