@@ -14,6 +14,7 @@ use image::RgbImage;
 use rayon::prelude::*;
 
 use crate::camera::Camera;
+use crate::capture::chroma::{self, Rebuild};
 use crate::capture::dump::{DumpError, DumpHeader, DumpReader};
 use crate::capture::video::{self, VideoError, VideoFile, Window};
 use crate::cloud::ScaleMode;
@@ -209,6 +210,35 @@ impl FrameSource {
 
     pub fn is_empty(&self) -> bool {
         self.len() == 0
+    }
+
+    /// How decoding these frames rebuilds their chroma ([`crate::capture::chroma`]), from
+    /// the first of their first few frames whose bytes say: a dump's buffers, or JPEG
+    /// files. `None` for PNG files and videos (FFmpeg's conversion is not ours), whose
+    /// sampling the extractors read off the pixels.
+    pub fn chroma(&self) -> Option<[Rebuild; 2]> {
+        const LOOKED_AT: usize = 8;
+        match self {
+            Self::Video(_) => None,
+            Self::Files(files) => files.iter().take(LOOKED_AT).find_map(|path| {
+                let bytes = std::fs::read(path).ok()?;
+                (image::guess_format(&bytes).ok()? == image::ImageFormat::Jpeg)
+                    .then(|| chroma::of_jpeg(&bytes))
+                    .flatten()
+            }),
+            Self::Dump {
+                path,
+                header,
+                offsets,
+            } => offsets
+                .iter()
+                .take(LOOKED_AT)
+                .enumerate()
+                .find_map(|(i, &at)| {
+                    let record = DumpReader::read_at(path, at, i).ok()?;
+                    chroma::of_buffer(header, &record.payload)
+                }),
+        }
     }
 
     /// Frame `i`, decoded to RGB and checked against the camera's image size. (A video

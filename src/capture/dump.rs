@@ -756,7 +756,7 @@ pub(crate) mod tests {
         })
     }
 
-    fn header() -> DumpHeader {
+    pub(crate) fn header() -> DumpHeader {
         DumpHeader {
             fourcc: *b"RGB3",
             width: 4,

@@ -1,5 +1,6 @@
 //! Frames from cameras and recordings.
 //!
+//! - [`chroma`]: how decoding a buffer rebuilds its chroma, read off its bytes.
 //! - [`dump`]: the recording format of raw camera buffers (versioned, documented there).
 //! - [`replay`]: a recorded dump or video file played back as if it were a camera.
 //! - [`video`]: video files (MP4, MOV, MKV, AVI) decoded by an FFmpeg child process.
@@ -11,6 +12,7 @@
 //! Every source implements [`FrameSource`], so the daemon runs the identical pipeline
 //! on a live camera and on a replay.
 
+pub mod chroma;
 pub mod dump;
 #[cfg(target_os = "linux")]
 pub mod live;

@@ -28,9 +28,12 @@
 //!
 //! Assumed: the encoder averages each block (libjpeg does) and sites its chroma at the
 //! block's centre (JFIF). A camera that sites it on the first pixel (MPEG-2 4:2:2)
-//! would need its own table; none is claimed here. The extractor keeps what a frame
-//! told it ([`Reader`]), so with several workers on a subsampled recording
-//! the frames before a worker's first telling one get no move (docs/extraction.md).
+//! would need its own table; none is claimed here. Where the frames' bytes are ours to
+//! decode (MJPEG, YUYV, a JPEG file), the decoder's knowledge is given to the extractor
+//! ([`crate::capture::chroma`]) and nothing is read. Otherwise the extractor keeps what
+//! a frame told it ([`Reader`]), so with several workers on a subsampled recording of
+//! that kind the frames before a worker's first telling one get no move
+//! (docs/extraction.md).
 
 use image::RgbImage;
 
@@ -40,16 +43,7 @@ use super::detect::LinePoint;
 mod model;
 use model::ShiftTable;
 
-/// How one axis's chroma was rebuilt from its blocks.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Rebuild {
-    /// Chroma at every pixel (4:4:4), or no evidence of blocks.
-    Full,
-    /// Each block's chroma repeated over its two pixels.
-    Repeated,
-    /// Interpolated between the blocks' centres (3/4 of the own block, 1/4 of the next).
-    Interpolated,
-}
+pub use crate::capture::chroma::Rebuild;
 
 /// A frame's chroma sampling, per axis (x, then y): how it was rebuilt, the first
 /// pixel (0 or 1) of the first whole block, and whether a frame has told (an axis not
@@ -68,6 +62,16 @@ impl Sampling {
         offset: [0, 0],
         told: [false, false],
     };
+
+    /// As the decoder says the frame was rebuilt (`crate::capture::chroma`): told
+    /// along both axes, the first block at pixel 0.
+    pub fn known(rebuild: [Rebuild; 2]) -> Self {
+        Self {
+            rebuild,
+            offset: [0, 0],
+            told: [true, true],
+        }
+    }
 
     /// Whether any axis was subsampled.
     pub fn is_subsampled(&self) -> bool {
@@ -107,6 +111,12 @@ impl Default for Reader {
 }
 
 impl Reader {
+    /// Takes the frames to come as rebuilt `rebuild` (known from their bytes), from now
+    /// on without reading them.
+    pub(super) fn know(&mut self, rebuild: [Rebuild; 2]) {
+        self.sampling = Sampling::known(rebuild);
+    }
+
     /// The sampling to take `frame` as having ([`Sampling::read`]): each axis read off
     /// the frames until one tells; after [`SAMPLING_TRIES`] frames, an axis not told is
     /// taken as full.

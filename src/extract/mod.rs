@@ -568,6 +568,13 @@ impl Extractor {
         self.stats
     }
 
+    /// Takes the frames to come as their decoder rebuilt their chroma, from their bytes
+    /// ([`crate::capture::chroma`]), instead of reading it off their pixels: exact from
+    /// the first frame, and the same in every worker.
+    pub fn know_chroma(&mut self, rebuild: [chroma::Rebuild; 2]) {
+        self.sampling.know(rebuild);
+    }
+
     /// The curves of `frame` against `background`. A frame with no laser gives no
     /// curves. Frames or backgrounds not of the camera's size are a caller's bug: they
     /// are logged and give no curves (see [`Self::try_extract`]).

@@ -120,3 +120,115 @@ fn a_stripe_in_subsampled_chroma_is_centred_as_in_full_chroma() {
         );
     }
 }
+
+/// `img` through a camera's MJPEG: encoded with `sampling` (each block's chroma
+/// averaged, as libjpeg and cameras do), decoded as a recording's frame is; and what
+/// the bytes say of the decoder's rebuild.
+fn through_mjpeg(
+    img: &RgbImage,
+    sampling: jpeg_encoder::SamplingFactor,
+    quality: u8,
+) -> (RgbImage, Option<[Rebuild; 2]>) {
+    let mut bytes = Vec::new();
+    let mut enc = jpeg_encoder::Encoder::new(&mut bytes, quality);
+    enc.set_sampling_factor(sampling);
+    enc.set_chroma_subsampling_method(jpeg_encoder::ChromaSubsamplingMethod::Average);
+    let (w, h) = img.dimensions();
+    enc.encode(
+        img.as_raw(),
+        w as u16,
+        h as u16,
+        jpeg_encoder::ColorType::Rgb,
+    )
+    .expect("encode");
+    let header = crate::capture::dump::DumpHeader {
+        fourcc: *b"MJPG",
+        width: w,
+        height: h,
+        bytes_per_line: 0,
+        interval_num: 1,
+        interval_den: 30,
+        device: "test".into(),
+        card: "test".into(),
+    };
+    let rgb = crate::capture::dump::decode_rgb(&header, &bytes).expect("decode");
+    (rgb, crate::capture::chroma::of_buffer(&header, &bytes))
+}
+
+/// What a JPEG's header says of its decoder is what its pixels show: zune-jpeg
+/// interpolates, from the first pixel.
+#[test]
+fn the_rebuild_a_jpeg_declares_is_the_one_its_pixels_show() {
+    use jpeg_encoder::SamplingFactor as S;
+    for sampling in [S::R_4_2_0, S::R_4_2_2, S::R_4_4_4] {
+        let img = crate::capture::dump::tests::textured_image();
+        let (rgb, declared) = through_mjpeg(&img, sampling, 100);
+        let declared = declared.expect("a JPEG's header says");
+        let mut read = Sampling::UNKNOWN;
+        read.read(&rgb);
+        for (axis, &rebuild) in declared.iter().enumerate() {
+            // The pattern's pixel-aligned edges leave a full axis untold, as they leave
+            // a 4:4:4 JPEG (see `HOLDS`); a subsampled one tells.
+            let interpolated = rebuild == Rebuild::Interpolated;
+            assert!(read.told[axis] || !interpolated, "{sampling:?}: {read:?}");
+            if read.told[axis] {
+                assert_eq!(read.rebuild[axis], rebuild, "{sampling:?}, {axis}");
+                assert_eq!(read.offset[axis], 0, "{sampling:?}, {axis}");
+            }
+        }
+    }
+}
+
+/// A stripe in a dark, flat frame from a 4:2:0 MJPEG camera (quality 90): its pixels
+/// cannot tell the extractor how the chroma was sampled, its JPEG's header can. Told
+/// so, the points are centred from the first frame as well as those of a 4:4:4 JPEG
+/// (whose quantisation is the floor here: 0.02-0.03 px); taken as full, they are
+/// pulled towards the blocks (measured 0.037, 0.024 and 0.118 px).
+#[test]
+fn a_dark_mjpeg_frame_is_centred_by_what_its_header_says() {
+    use jpeg_encoder::SamplingFactor as S;
+    let (w, h) = (320u32, 120u32);
+    let surface = |_: f64, _: f64| [12.0, 12.0, 12.0];
+    let worst = |sampling: S, know: bool| {
+        (0..16)
+            .map(|k| {
+                let mut ex = red_green_extractor(w, h);
+                let line = (60.03 + k as f64 / 8.0, 0.0);
+                let stripe = Some((line.0, line.1, 1.0, 150.0, [1.0, 0.1, 0.05]));
+                let (img, declared) =
+                    through_mjpeg(&frame((w, h), &surface, stripe, 0.5), sampling, 90);
+                let (off, _) = through_mjpeg(&frame((w, h), &surface, None, 0.5), sampling, 90);
+                if know {
+                    ex.know_chroma(declared.expect("declared"));
+                } else {
+                    ex.sampling.sampling.settle();
+                }
+                let curves = ex.extract(&img, &Background::from_image(off));
+                let mut e = distance_errors(&curves, line, 20.0, w as f64);
+                e.sort_by(f64::total_cmp);
+                e.get(e.len() / 2).copied().unwrap_or(0.0).abs()
+            })
+            .fold(0f64, f64::max)
+    };
+    // Its pixels: a dark frame and one straight stripe leave the sampling untold.
+    let mut ex = red_green_extractor(w, h);
+    let stripe = Some((60.3, 0.0, 1.0, 150.0, [1.0, 0.1, 0.05]));
+    let (img, _) = through_mjpeg(&frame((w, h), &surface, stripe, 0.5), S::R_4_2_0, 90);
+    ex.extract(&img, &Background::local(w, h));
+    assert!(
+        !ex.sampling.sampling.is_told(),
+        "{:?}",
+        ex.sampling.sampling
+    );
+    let floor = worst(S::R_4_4_4, true);
+    let (told, full) = (worst(S::R_4_2_0, true), worst(S::R_4_2_0, false));
+    eprintln!("4:2:0 told {told:.4} px, taken as full {full:.4} px; 4:4:4 {floor:.4} px");
+    assert!(
+        told < 2.0 * floor,
+        "told: {told:.3} px, 4:4:4 {floor:.3} px"
+    );
+    assert!(
+        full > 2.0 * told,
+        "taken as full: {full:.3} px, told {told:.3}"
+    );
+}

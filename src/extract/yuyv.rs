@@ -17,7 +17,7 @@
 
 use image::RgbImage;
 
-use super::{tiles_near, Background, Curve, ExtractError, Extractor, TileFrame};
+use super::{chroma, tiles_near, Background, Curve, ExtractError, Extractor, TileFrame};
 use crate::capture::dump::yuyv_row_to_rgb;
 
 /// Tiles around a candidate tile that are converted too: the detector's kernels and
@@ -124,6 +124,8 @@ impl Extractor {
                 got_height: (yuyv.len() / stride.max(1)) as u32,
             });
         }
+        // A YUYV pair's chroma is repeated over its two pixels (`yuyv_row_to_rgb`).
+        self.know_chroma([chroma::Rebuild::Repeated, chroma::Rebuild::Full]);
         let (tile, tiles_x, tiles_y) = (
             self.detector.tile,
             self.detector.tiles_x,

@@ -100,6 +100,8 @@ pub fn extract_frames(
     let warnings = Extractor::new(&config.extract, camera)?.warnings();
     let (n, done, skipped) = (frames.len(), AtomicUsize::new(0), Skipped::default());
     let mut pass = frames.pass(camera)?;
+    let chroma = frames.chroma();
+    tracing::debug!("the frames' chroma as their bytes say (x, y): {chroma:?}");
     let (mut extracted, mut first_bg, mut background_s) = (0, None, 0.0);
     let mut v = 0;
     let extractors = Mutex::new(Vec::new());
@@ -118,9 +120,13 @@ pub fn extract_frames(
             let spare = extractors.lock().unwrap_or_else(|e| e.into_inner()).pop();
             Lent {
                 extractor: spare.or_else(|| {
-                    Extractor::new(&config.extract, camera)
-                        .ok()
-                        .map(|ex| ex.sharing_warnings(warnings.clone()))
+                    Extractor::new(&config.extract, camera).ok().map(|ex| {
+                        let mut ex = ex.sharing_warnings(warnings.clone());
+                        if let Some(rebuild) = chroma {
+                            ex.know_chroma(rebuild);
+                        }
+                        ex
+                    })
                 }),
                 pool: &extractors,
             }

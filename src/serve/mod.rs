@@ -216,6 +216,10 @@ pub struct Shared {
     pub last_error: Mutex<Option<String>>,
     pub solver_frame_micros: Mutex<Vec<u64>>,
     pub live_solver: Mutex<SolverCounts>,
+    /// How decoding the stream's buffers rebuilds their chroma, from the first whose
+    /// bytes say ([`crate::capture::chroma`]); set before that frame is extracted, so
+    /// every frame is extracted knowing it, whichever worker decoded it.
+    pub chroma: std::sync::OnceLock<[crate::capture::chroma::Rebuild; 2]>,
 }
 
 /// The status lines to publish for `current`: when the device was lost since the last

@@ -20,6 +20,7 @@ use super::{
     WORKER_STACK_BYTES,
 };
 use crate::camera::Camera;
+use crate::capture::chroma;
 use crate::capture::dump::{decode_rgb, DumpHeader};
 use crate::capture::{CaptureError, FrameSource, Next};
 use crate::extract::{Background, Curve, ExtractParams, Extractor, Presence};
@@ -331,6 +332,9 @@ fn worker_loop(consumer: ring::Consumer, results: Sender<Extracted>, ctx: Worker
     let send =
         |meta: FrameMeta, curves: Vec<Curve>| results.send(Extracted { meta, curves }).is_ok();
     let extract = |extractor: &mut Extractor, (meta, image, bg): background::Ready| {
+        if let Some(&rebuild) = shared.chroma.get() {
+            extractor.know_chroma(rebuild);
+        }
         let curves = image.map_or_else(Vec::new, |i| extractor.extract(&i, &bg));
         send(meta, curves)
     };
@@ -361,6 +365,11 @@ fn worker_loop(consumer: ring::Consumer, results: Sender<Extracted>, ctx: Worker
         }
         background.keep_sample(meta.index, &slot.bytes);
         let image = decode_checked(header, &slot.bytes, camera, shared, meta);
+        if image.is_some() && shared.chroma.get().is_none() {
+            if let Some(rebuild) = chroma::of_buffer(header, &slot.bytes) {
+                let _ = shared.chroma.set(rebuild);
+            }
+        }
         drop(slot);
         if let Some(ready) = background.arrive(meta, image) {
             if !extract(&mut extractor, ready) {

@@ -196,10 +196,51 @@ fn replay_streams_status_and_clients_end_with_the_final_cloud() {
 #[test]
 fn one_and_two_workers_and_reconstruct_give_the_same_cloud() {
     let tmp = tempfile::tempdir().expect("tempdir");
+    one_cloud_with_any_workers_and_offline(&dump(), tmp.path());
+}
+
+/// The same scan as a camera that sends 4:2:0 MJPEG (most USB cameras send 4:2:2 or
+/// 4:2:0): every frame is extracted knowing its chroma sampling from its JPEG header, so
+/// the points moved off the chroma blocks' pull are the same whichever worker, or
+/// `reconstruct`, extracts them.
+#[test]
+fn a_subsampled_mjpeg_replay_gives_one_cloud_with_any_workers_and_offline() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let subsampled = tmp.path().join("frames-420.dump");
+    transcode_420(&dump(), &subsampled);
+    one_cloud_with_any_workers_and_offline(&subsampled, tmp.path());
+}
+
+/// `input`'s frames decoded and encoded again as 4:2:0 JPEG (quality 90, each block's
+/// chroma averaged, as cameras do), into a dump at `out`.
+fn transcode_420(input: &Path, out: &Path) {
+    use crossline::capture::dump::{decode_rgb, DumpReader, DumpWriter};
+    let mut reader = DumpReader::open(input).expect("open the fixture");
+    let header = reader.header().clone();
+    let mut writer = DumpWriter::create(out, &header).expect("create");
+    while let Some(record) = reader.next_record().expect("read") {
+        let rgb = decode_rgb(&header, &record.payload).expect("decode");
+        let mut jpeg = Vec::new();
+        let mut enc = jpeg_encoder::Encoder::new(&mut jpeg, 90);
+        enc.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_2_0);
+        enc.set_chroma_subsampling_method(jpeg_encoder::ChromaSubsamplingMethod::Average);
+        let (w, h) = (rgb.width() as u16, rgb.height() as u16);
+        enc.encode(rgb.as_raw(), w, h, jpeg_encoder::ColorType::Rgb)
+            .expect("encode");
+        writer
+            .write_frame(record.sequence, record.timestamp_nanos, record.flags, &jpeg)
+            .expect("write");
+    }
+    writer.finish().expect("finish");
+}
+
+/// `serve --replay input` with one worker and with two, and `reconstruct` of it, give
+/// the same cloud, point for point.
+fn one_cloud_with_any_workers_and_offline(input: &Path, tmp: &Path) {
     let mut clouds = Vec::new();
     for workers in ["1", "2"] {
-        let dir = tmp.path().join(workers);
-        run_ok(serve(&dir, &dump(), "max").args(["--workers", workers]));
+        let dir = tmp.join(workers);
+        run_ok(serve(&dir, input, "max").args(["--workers", workers]));
         let r = report(&dir);
         assert_eq!(r["frames_processed"], 100, "{r}");
         assert_eq!(
@@ -212,8 +253,8 @@ fn one_and_two_workers_and_reconstruct_give_the_same_cloud() {
     assert!(same_cloud(&clouds[0], &clouds[1]), "clouds differ");
     // One pipeline, one background policy: `reconstruct` of the same dump gives the
     // same cloud, point for point.
-    let offline = tmp.path().join("offline.ply");
-    run_ok(&mut crate::util::reconstruct(&dump(), &camera(), &offline));
+    let offline = tmp.join("offline.ply");
+    run_ok(&mut crate::util::reconstruct(input, &camera(), &offline));
     let offline = read_ply(&offline).expect("reconstruct's cloud");
     assert!(
         same_cloud(&clouds[1], &offline),

@@ -90,6 +90,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         None => Camera::with_fov(frame.width(), frame.height(), 60f64.to_radians()),
     };
     let mut extractor = Extractor::new(&params, &camera).context("extraction parameters")?;
+    // A JPEG says how its colour was sampled; a PNG's is read off its pixels.
+    if let Some(rebuild) = std::fs::read(&args.input)
+        .ok()
+        .and_then(|bytes| crossline::capture::chroma::of_jpeg(&bytes))
+    {
+        extractor.know_chroma(rebuild);
+    }
     let curves = extractor
         .try_extract(&frame, &background)
         .with_context(|| format!("extracting {}", args.input.display()))?;
