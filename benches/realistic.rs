@@ -53,7 +53,7 @@ fn main() {
     while done < scans {
         seed += 1;
         let mut drawn = draw_realistic(seed, 40);
-        if let FrameFormat::Jpeg { quality } = drawn.format {
+        if let FrameFormat::Jpeg { quality, .. } = drawn.format {
             drawn.params.jpeg_quality = Some(quality);
         }
         if drawn.spec.medium == Medium::Water {

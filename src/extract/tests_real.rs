@@ -364,7 +364,7 @@ impl Realistic {
         if drawn.spec.medium == Medium::Water {
             return None;
         }
-        if let FrameFormat::Jpeg { quality } = drawn.format {
+        if let FrameFormat::Jpeg { quality, .. } = drawn.format {
             drawn.params.jpeg_quality = Some(quality);
         }
         let sim = Simulator::new(&drawn.spec, &drawn.params).expect("sim");

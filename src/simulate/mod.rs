@@ -159,6 +159,8 @@ pub enum SimError {
         #[source]
         source: image::ImageError,
     },
+    #[error("cannot encode JPEG {path}: {message}")]
+    Encode { path: PathBuf, message: String },
     #[error("{path}: {source}")]
     Json {
         path: PathBuf,
@@ -335,28 +337,82 @@ pub fn write_png_fast(path: &Path, img: &RgbImage) -> Result<(), SimError> {
 pub enum FrameFormat {
     /// Lossless `frame_NNNNNN.png`.
     Png,
-    /// `frame_NNNNNN.jpg` at this quality (1-100): what an MJPEG camera delivers, and
-    /// ten times smaller, for fixtures.
-    Jpeg { quality: u8 },
+    /// `frame_NNNNNN.jpg` at this quality (1-100) and chroma sampling: what an MJPEG
+    /// camera delivers, and ten times smaller, for fixtures.
+    Jpeg { quality: u8, chroma: JpegChroma },
     /// One `frames.dump` in the recording format ([`crate::capture::dump`]), MJPEG
-    /// buffers at this quality, 30 frames per second of driver time.
-    Dump { quality: u8 },
+    /// buffers at this quality and chroma sampling, 30 frames per second of driver time.
+    Dump { quality: u8, chroma: JpegChroma },
+}
+
+/// How a JPEG frame's colour is sampled.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum JpegChroma {
+    /// At every pixel (4:4:4).
+    #[default]
+    Full,
+    /// Per two pixels of a row (4:2:2), as most USB cameras' MJPEG.
+    Half422,
+    /// Per 2×2 pixels (4:2:0), as other cameras' MJPEG and most video.
+    Half420,
+}
+
+impl JpegChroma {
+    /// `444`, `422` or `420`.
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "444" | "4:4:4" => Some(Self::Full),
+            "422" | "4:2:2" => Some(Self::Half422),
+            "420" | "4:2:0" => Some(Self::Half420),
+            _ => None,
+        }
+    }
 }
 
 /// Encodes an image as JPEG and writes it.
-pub fn write_jpeg(path: &Path, img: &RgbImage, quality: u8) -> Result<(), SimError> {
-    let buf = encode_jpeg(img, quality).map_err(|source| SimError::Image {
+pub fn write_jpeg(
+    path: &Path,
+    img: &RgbImage,
+    quality: u8,
+    chroma: JpegChroma,
+) -> Result<(), SimError> {
+    let buf = encode_jpeg(img, quality, chroma).map_err(|message| SimError::Encode {
         path: path.to_path_buf(),
-        source,
+        message,
     })?;
     std::fs::write(path, &buf).map_err(io_err(path))
 }
 
-/// JPEG bytes of `img` at `quality` (clamped to 1-100).
-pub(crate) fn encode_jpeg(img: &RgbImage, quality: u8) -> Result<Vec<u8>, image::ImageError> {
+/// JPEG bytes of `img` at `quality` (clamped to 1-100) with `chroma`. In full chroma
+/// by the `image` crate's encoder (the frames of every figure before subsampling was
+/// added); subsampled by jpeg-encoder, each block's chroma averaged as libjpeg and
+/// cameras do.
+pub(crate) fn encode_jpeg(
+    img: &RgbImage,
+    quality: u8,
+    chroma: JpegChroma,
+) -> Result<Vec<u8>, String> {
     let mut buf = Vec::with_capacity(img.as_raw().len() / 8);
-    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut buf, quality.clamp(1, 100))
-        .encode_image(img)?;
+    let quality = quality.clamp(1, 100);
+    let sampling = match chroma {
+        JpegChroma::Full => {
+            image::codecs::jpeg::JpegEncoder::new_with_quality(&mut buf, quality)
+                .encode_image(img)
+                .map_err(|e| e.to_string())?;
+            return Ok(buf);
+        }
+        JpegChroma::Half422 => jpeg_encoder::SamplingFactor::R_4_2_2,
+        JpegChroma::Half420 => jpeg_encoder::SamplingFactor::R_4_2_0,
+    };
+    let (w, h) = (
+        u16::try_from(img.width()).map_err(|_| "wider than 65535 px".to_string())?,
+        u16::try_from(img.height()).map_err(|_| "taller than 65535 px".to_string())?,
+    );
+    let mut enc = jpeg_encoder::Encoder::new(&mut buf, quality);
+    enc.set_sampling_factor(sampling);
+    enc.set_chroma_subsampling_method(jpeg_encoder::ChromaSubsamplingMethod::Average);
+    enc.encode(img.as_raw(), w, h, jpeg_encoder::ColorType::Rgb)
+        .map_err(|e| e.to_string())?;
     Ok(buf)
 }
 
@@ -366,7 +422,7 @@ fn write_dump(
     sim: &Simulator,
     frames: usize,
     path: &Path,
-    quality: u8,
+    (quality, chroma): (u8, JpegChroma),
     progress: &(impl Fn(usize) + Sync),
 ) -> Result<Vec<u8>, SimError> {
     use crate::capture::dump::{DumpHeader, DumpWriter};
@@ -396,10 +452,11 @@ fn write_dump(
                 let mut img = RgbImage::new(cam.width, cam.height);
                 let mut frame_lit = vec![0u8; n];
                 sim.render_frame_into(i, &mut img, Some(&mut frame_lit));
-                let jpeg = encode_jpeg(&img, quality).map_err(|source| SimError::Image {
-                    path: path.to_path_buf(),
-                    source,
-                })?;
+                let jpeg =
+                    encode_jpeg(&img, quality, chroma).map_err(|message| SimError::Encode {
+                        path: path.to_path_buf(),
+                        message,
+                    })?;
                 Ok((i, jpeg, frame_lit))
             })
             .collect::<Result<Vec<_>, SimError>>()?;
@@ -454,8 +511,14 @@ pub fn write_sim_dir_as(
 
     let n = (cam.width * cam.height) as usize;
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let lit = if let FrameFormat::Dump { quality } = format {
-        write_dump(sim, frames, &out.join("frames.dump"), quality, &progress)?
+    let lit = if let FrameFormat::Dump { quality, chroma } = format {
+        write_dump(
+            sim,
+            frames,
+            &out.join("frames.dump"),
+            (quality, chroma),
+            &progress,
+        )?
     } else {
         (0..frames)
             .into_par_iter()
@@ -467,9 +530,12 @@ pub fn write_sim_dir_as(
                         FrameFormat::Png => {
                             write_png_fast(&out.join(format!("frame_{i:06}.png")), &img)?
                         }
-                        FrameFormat::Jpeg { quality } => {
-                            write_jpeg(&out.join(format!("frame_{i:06}.jpg")), &img, quality)?
-                        }
+                        FrameFormat::Jpeg { quality, chroma } => write_jpeg(
+                            &out.join(format!("frame_{i:06}.jpg")),
+                            &img,
+                            quality,
+                            chroma,
+                        )?,
                         FrameFormat::Dump { .. } => {}
                     }
                     let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;

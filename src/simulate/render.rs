@@ -846,7 +846,7 @@ fn main_channel(colour: [f64; 3]) -> usize {
 }
 
 fn jpeg_round_trip(img: &mut RgbImage, quality: u8) {
-    let Ok(buf) = super::encode_jpeg(img, quality) else {
+    let Ok(buf) = super::encode_jpeg(img, quality, super::JpegChroma::Full) else {
         return;
     };
     if let Ok(decoded) = image::load_from_memory_with_format(&buf, image::ImageFormat::Jpeg) {

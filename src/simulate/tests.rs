@@ -866,3 +866,26 @@ fn a_rolling_shutter_exposes_each_row_at_its_own_time() {
         global.row_pose(index, h as u32 - 1)
     );
 }
+
+/// The simulator's JPEG frames carry the chroma sampling asked for, in their header
+/// (which the extractor reads) and in their pixels (which the decoder rebuilds).
+#[test]
+fn jpeg_frames_are_sampled_as_asked() {
+    use crate::capture::chroma::{of_jpeg, Rebuild};
+    let img = RgbImage::from_fn(64, 48, |x, y| {
+        let v = if (x / 3 + y / 5) % 2 == 0 { 200 } else { 40 };
+        image::Rgb([v, 255 - v, 90])
+    });
+    for (chroma, want) in [
+        (JpegChroma::Full, [Rebuild::Full; 2]),
+        (JpegChroma::Half422, [Rebuild::Interpolated, Rebuild::Full]),
+        (JpegChroma::Half420, [Rebuild::Interpolated; 2]),
+    ] {
+        let bytes = encode_jpeg(&img, 95, chroma).expect("encode");
+        assert_eq!(of_jpeg(&bytes), Some(want), "{chroma:?}");
+        let decoded = image::load_from_memory(&bytes).expect("decode").to_rgb8();
+        assert_eq!(decoded.dimensions(), img.dimensions());
+    }
+    assert_eq!(JpegChroma::parse("4:2:0"), Some(JpegChroma::Half420));
+    assert_eq!(JpegChroma::parse("411"), None);
+}

@@ -9,7 +9,7 @@ use crossline::compare::{evaluate_against_truth, TruthParams};
 use crossline::config::Config;
 use crossline::reconstruct::{self, PlaneSource};
 use crossline::simulate::{
-    builtin_scene, load_sim_dir, write_sim_dir_as, FrameFormat, SimParams, Simulator,
+    builtin_scene, load_sim_dir, write_sim_dir_as, FrameFormat, JpegChroma, SimParams, Simulator,
 };
 
 /// Simulate a scan of a built-in scene, reconstruct it with no knowledge of the
@@ -68,7 +68,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         &sim,
         args.frames,
         &sim_dir,
-        FrameFormat::Dump { quality: 95 },
+        FrameFormat::Dump {
+            quality: 95,
+            chroma: JpegChroma::Full,
+        },
         |n| bar.set_position(n as u64),
     )
     .with_context(|| format!("writing the simulation to {}", sim_dir.display()))?;

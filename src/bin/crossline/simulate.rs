@@ -8,8 +8,8 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use crossline::simulate::random::{self, DrawnScan};
 use crossline::simulate::{
-    builtin_scene, load_scene_file, write_sim_dir_as, FrameFormat, LaserColour, Medium, SceneSpec,
-    SimParams, Simulator, BUILTIN_SCENES,
+    builtin_scene, load_scene_file, write_sim_dir_as, FrameFormat, JpegChroma, LaserColour, Medium,
+    SceneSpec, SimParams, Simulator, BUILTIN_SCENES,
 };
 
 /// Render the image sequence a fixed camera would record of a hand-held cross line
@@ -88,6 +88,11 @@ pub struct Args {
     /// --format jpeg, the quality of the JPEG frames.
     #[arg(long, value_name = "Q", value_parser = clap::value_parser!(u8).range(1..=100))]
     jpeg_quality: Option<u8>,
+    /// Chroma sampling of JPEG frames (--format jpeg or dump): 444 (colour at every
+    /// pixel), 422 (per two pixels of a row, as most USB cameras' MJPEG) or 420 (per
+    /// 2x2 pixels, as other cameras' MJPEG and most video) [default: 444].
+    #[arg(long, value_name = "444|422|420")]
+    chroma: Option<String>,
     /// Image width in pixels (overrides the scene; the field of view is kept).
     #[arg(long, value_name = "PX")]
     width: Option<u32>,
@@ -133,23 +138,34 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         bail!("--frames {}: expected 1 to {MAX_FRAMES}", args.frames);
     }
     let mut drawn: Option<DrawnScan> = args.random.map(|seed| random::draw(seed, args.frames));
+    let chroma = match args.chroma.as_deref() {
+        None => JpegChroma::Full,
+        Some(s) => JpegChroma::parse(s)
+            .with_context(|| format!("--chroma {s}: expected 444, 422 or 420"))?,
+    };
     let format = match args.format.as_deref() {
         Some("png") => FrameFormat::Png,
         Some("jpeg" | "jpg") => FrameFormat::Jpeg {
             quality: args.jpeg_quality.unwrap_or(92),
+            chroma,
         },
         Some("dump") => FrameFormat::Dump {
             quality: args.jpeg_quality.unwrap_or(92),
+            chroma,
         },
         Some(other) => bail!("--format {other}: expected png, jpeg or dump"),
         None => match drawn.as_ref().map(|d| d.format) {
-            Some(FrameFormat::Jpeg { quality }) => FrameFormat::Jpeg {
+            Some(FrameFormat::Jpeg { quality, .. }) => FrameFormat::Jpeg {
                 quality: args.jpeg_quality.unwrap_or(quality),
+                chroma,
             },
             Some(other) => other,
             None => FrameFormat::Png,
         },
     };
+    if args.chroma.is_some() && format == FrameFormat::Png {
+        bail!("--chroma samples JPEG frames: give --format jpeg or dump");
+    }
     let mut spec = match (&drawn, &args.scene) {
         (Some(d), _) => d.spec.clone(),
         (None, Some(name)) => load_scene(name)?,

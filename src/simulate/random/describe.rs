@@ -115,8 +115,8 @@ impl DrawnScan {
         let walk = V3::from(p.walk_per_frame).norm() * self.frames.saturating_sub(1) as f64;
         let (encoding, jpeg_quality) = match self.format {
             FrameFormat::Png => ("png", self.params.jpeg_quality),
-            FrameFormat::Jpeg { quality } => ("jpeg", Some(quality)),
-            FrameFormat::Dump { quality } => ("dump", Some(quality)),
+            FrameFormat::Jpeg { quality, .. } => ("jpeg", Some(quality)),
+            FrameFormat::Dump { quality, .. } => ("dump", Some(quality)),
         };
         Description {
             version: RANDOM_VERSION,

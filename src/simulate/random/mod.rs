@@ -195,6 +195,7 @@ pub fn draw(seed: u64, frames: usize) -> DrawnScan {
     } else {
         FrameFormat::Jpeg {
             quality: rng.int(80, 95) as u8,
+            chroma: super::JpegChroma::Full,
         }
     };
     let mut drawn = DrawnScan {

@@ -7,7 +7,7 @@ use std::path::Path;
 use super::*;
 use crate::simulate::motion::Motion;
 use crate::simulate::scene::Shape;
-use crate::simulate::Simulator;
+use crate::simulate::{JpegChroma, Simulator};
 
 const FRAMES: usize = 300;
 
@@ -140,7 +140,7 @@ fn drawn_values_stay_within_their_ranges() {
         at("power", p.power, 150.0, 10000.0);
         at("ambient", s.light.ambient, 60.0, 130.0);
         at("noise", d.params.noise_sigma, 1.5, 3.0);
-        if let FrameFormat::Jpeg { quality } = d.format {
+        if let FrameFormat::Jpeg { quality, .. } = d.format {
             at("jpeg quality", quality as f64, 80.0, 95.0);
         }
         if d.kind == SceneKind::Table {
@@ -233,7 +233,10 @@ fn summary_and_description_follow_overrides() {
     let mut d = draw(3, 120);
     assert!(d.summary.starts_with(d.kind.name()), "{}", d.summary);
     assert_eq!(d.summary.split(" | ").count(), 5, "{}", d.summary);
-    d.format = FrameFormat::Dump { quality: 70 };
+    d.format = FrameFormat::Dump {
+        quality: 70,
+        chroma: JpegChroma::Full,
+    };
     d.spec = d.spec.clone().with_resolution(640, 360);
     d.summary = d.summarise();
     assert!(
