@@ -6,6 +6,7 @@ use super::chroma::{Rebuild, Sampling};
 use super::tests_real::{distance_errors, frame, red_green_extractor};
 use super::*;
 use crate::simulate::realism::subsample_chroma;
+use crate::simulate::{encode_jpeg, JpegChroma};
 
 /// `img`'s chroma through 4:2:0 and `rebuild` (none for [`Rebuild::Full`]).
 fn rebuilt(mut img: RgbImage, rebuild: Rebuild) -> RgbImage {
@@ -121,26 +122,16 @@ fn a_stripe_in_subsampled_chroma_is_centred_as_in_full_chroma() {
     }
 }
 
-/// `img` through a camera's MJPEG: encoded with `sampling` (each block's chroma
-/// averaged, as libjpeg and cameras do), decoded as a recording's frame is; and what
-/// the bytes say of the decoder's rebuild.
+/// `img` through a camera's MJPEG: encoded with `chroma` as the simulator's dumps are
+/// (each block's chroma averaged, as libjpeg and cameras do), decoded as a recording's
+/// frame is; and what the bytes say of the decoder's rebuild.
 fn through_mjpeg(
     img: &RgbImage,
-    sampling: jpeg_encoder::SamplingFactor,
+    chroma: JpegChroma,
     quality: u8,
 ) -> (RgbImage, Option<[Rebuild; 2]>) {
-    let mut bytes = Vec::new();
-    let mut enc = jpeg_encoder::Encoder::new(&mut bytes, quality);
-    enc.set_sampling_factor(sampling);
-    enc.set_chroma_subsampling_method(jpeg_encoder::ChromaSubsamplingMethod::Average);
+    let bytes = encode_jpeg(img, quality, chroma).expect("encode");
     let (w, h) = img.dimensions();
-    enc.encode(
-        img.as_raw(),
-        w as u16,
-        h as u16,
-        jpeg_encoder::ColorType::Rgb,
-    )
-    .expect("encode");
     let header = crate::capture::dump::DumpHeader {
         fourcc: *b"MJPG",
         width: w,
@@ -159,8 +150,7 @@ fn through_mjpeg(
 /// interpolates, from the first pixel.
 #[test]
 fn the_rebuild_a_jpeg_declares_is_the_one_its_pixels_show() {
-    use jpeg_encoder::SamplingFactor as S;
-    for sampling in [S::R_4_2_0, S::R_4_2_2, S::R_4_4_4] {
+    for sampling in [JpegChroma::Half420, JpegChroma::Half422, JpegChroma::Full] {
         let img = crate::capture::dump::tests::textured_image();
         let (rgb, declared) = through_mjpeg(&img, sampling, 100);
         let declared = declared.expect("a JPEG's header says");
@@ -186,7 +176,7 @@ fn the_rebuild_a_jpeg_declares_is_the_one_its_pixels_show() {
 /// pulled towards the blocks (measured 0.037, 0.024 and 0.118 px).
 #[test]
 fn a_dark_mjpeg_frame_is_centred_by_what_its_header_says() {
-    use jpeg_encoder::SamplingFactor as S;
+    use JpegChroma as S;
     let (w, h) = (320u32, 120u32);
     let surface = |_: f64, _: f64| [12.0, 12.0, 12.0];
     let worst = |sampling: S, know: bool| {
@@ -213,15 +203,15 @@ fn a_dark_mjpeg_frame_is_centred_by_what_its_header_says() {
     // Its pixels: a dark frame and one straight stripe leave the sampling untold.
     let mut ex = red_green_extractor(w, h);
     let stripe = Some((60.3, 0.0, 1.0, 150.0, [1.0, 0.1, 0.05]));
-    let (img, _) = through_mjpeg(&frame((w, h), &surface, stripe, 0.5), S::R_4_2_0, 90);
+    let (img, _) = through_mjpeg(&frame((w, h), &surface, stripe, 0.5), S::Half420, 90);
     ex.extract(&img, &Background::local(w, h));
     assert!(
         !ex.sampling.sampling.is_told(),
         "{:?}",
         ex.sampling.sampling
     );
-    let floor = worst(S::R_4_4_4, true);
-    let (told, full) = (worst(S::R_4_2_0, true), worst(S::R_4_2_0, false));
+    let floor = worst(S::Full, true);
+    let (told, full) = (worst(S::Half420, true), worst(S::Half420, false));
     eprintln!("4:2:0 told {told:.4} px, taken as full {full:.4} px; 4:4:4 {floor:.4} px");
     assert!(
         told < 2.0 * floor,

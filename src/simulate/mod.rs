@@ -387,11 +387,7 @@ pub fn write_jpeg(
 /// by the `image` crate's encoder (the frames of every figure before subsampling was
 /// added); subsampled by jpeg-encoder, each block's chroma averaged as libjpeg and
 /// cameras do.
-pub(crate) fn encode_jpeg(
-    img: &RgbImage,
-    quality: u8,
-    chroma: JpegChroma,
-) -> Result<Vec<u8>, String> {
+pub fn encode_jpeg(img: &RgbImage, quality: u8, chroma: JpegChroma) -> Result<Vec<u8>, String> {
     let mut buf = Vec::with_capacity(img.as_raw().len() / 8);
     let quality = quality.clamp(1, 100);
     let sampling = match chroma {

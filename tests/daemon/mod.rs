@@ -215,18 +215,13 @@ fn a_subsampled_mjpeg_replay_gives_one_cloud_with_any_workers_and_offline() {
 /// chroma averaged, as cameras do), into a dump at `out`.
 fn transcode_420(input: &Path, out: &Path) {
     use crossline::capture::dump::{decode_rgb, DumpReader, DumpWriter};
+    use crossline::simulate::{encode_jpeg, JpegChroma};
     let mut reader = DumpReader::open(input).expect("open the fixture");
     let header = reader.header().clone();
     let mut writer = DumpWriter::create(out, &header).expect("create");
     while let Some(record) = reader.next_record().expect("read") {
         let rgb = decode_rgb(&header, &record.payload).expect("decode");
-        let mut jpeg = Vec::new();
-        let mut enc = jpeg_encoder::Encoder::new(&mut jpeg, 90);
-        enc.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_2_0);
-        enc.set_chroma_subsampling_method(jpeg_encoder::ChromaSubsamplingMethod::Average);
-        let (w, h) = (rgb.width() as u16, rgb.height() as u16);
-        enc.encode(rgb.as_raw(), w, h, jpeg_encoder::ColorType::Rgb)
-            .expect("encode");
+        let jpeg = encode_jpeg(&rgb, 90, JpegChroma::Half420).expect("encode");
         writer
             .write_frame(record.sequence, record.timestamp_nanos, record.flags, &jpeg)
             .expect("write");
