@@ -35,9 +35,10 @@ pub struct Realism {
     /// Average chroma over 2×2 blocks (YCbCr 4:2:0, as MJPEG cameras send).
     pub chroma_420: bool,
     /// How the 4:2:0 chroma is rebuilt to full size: interpolated between the blocks'
-    /// centres as JPEG decoders do (libjpeg's and zune-jpeg's "fancy upsampling"), or,
-    /// when false, each block's chroma repeated over its four pixels (FFmpeg's
-    /// unscaled conversion to RGB, a YUYV pair's shared chroma).
+    /// centres as JPEG decoders do (libjpeg's and zune-jpeg's "fancy upsampling"; with
+    /// a JPEG quality, the frame is one real 4:2:0 JPEG round trip), or, when false,
+    /// each block's chroma repeated over its four pixels (FFmpeg's unscaled conversion
+    /// to RGB, a YUYV pair's shared chroma).
     pub chroma_interpolated: bool,
     /// Which of the two lasers are on.
     pub lasers_on: [bool; 2],

@@ -491,12 +491,21 @@ impl Simulator {
         if r.moving_object {
             realism::draw_moving_object(self.params.seed, key, buf, (w, h));
         }
+        // A 4:2:0 JPEG whose decoder interpolates is a camera's MJPEG as zune-jpeg or
+        // libjpeg decodes it: one real round trip, the chroma averaged per block,
+        // quantised at block resolution (a chroma DCT block spans 16×16 pixels) and
+        // rebuilt. Repeated chroma is a conversion outside the JPEG decoder (FFmpeg's,
+        // a YUYV pair), after a 4:4:4 round trip; so is either rebuild of PNG frames.
+        let jpeg_420 = r.chroma_420 && r.chroma_interpolated;
+        let chroma = if jpeg_420 {
+            super::JpegChroma::Half420
+        } else {
+            super::JpegChroma::Full
+        };
         if let Some(q) = self.params.jpeg_quality {
-            jpeg_round_trip(img, q);
+            jpeg_round_trip(img, q, chroma);
         }
-        // After the JPEG round trip (which is 4:4:4): a 4:2:0 JPEG's chroma is
-        // quantised at block resolution and then rebuilt, so the rebuild comes last.
-        if r.chroma_420 {
+        if r.chroma_420 && !(jpeg_420 && self.params.jpeg_quality.is_some()) {
             realism::subsample_chroma(&mut *img, (w, h), r.chroma_interpolated);
         }
     }
@@ -845,8 +854,8 @@ fn main_channel(colour: [f64; 3]) -> usize {
     (0..3).fold(0, |m, c| if colour[c] > colour[m] { c } else { m })
 }
 
-fn jpeg_round_trip(img: &mut RgbImage, quality: u8) {
-    let Ok(buf) = super::encode_jpeg(img, quality, super::JpegChroma::Full) else {
+fn jpeg_round_trip(img: &mut RgbImage, quality: u8, chroma: super::JpegChroma) {
+    let Ok(buf) = super::encode_jpeg(img, quality, chroma) else {
         return;
     };
     if let Ok(decoded) = image::load_from_memory_with_format(&buf, image::ImageFormat::Jpeg) {

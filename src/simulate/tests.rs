@@ -889,3 +889,22 @@ fn jpeg_frames_are_sampled_as_asked() {
     assert_eq!(JpegChroma::parse("4:2:0"), Some(JpegChroma::Half420));
     assert_eq!(JpegChroma::parse("411"), None);
 }
+
+/// A frame drawn as an interpolated 4:2:0 JPEG is what a camera's 4:2:0 JPEG of the
+/// same light decodes to: one real round trip, the chroma quantised per 16×16 pixels
+/// (not a 4:4:4 JPEG whose chroma is subsampled afterwards).
+#[test]
+fn an_interpolated_420_jpeg_frame_is_one_real_round_trip() {
+    let spec = stripe_scene("");
+    let clean = Simulator::new(&spec, &quiet()).expect("sim");
+    let mut params = quiet();
+    params.jpeg_quality = Some(88);
+    params.realism.chroma_420 = true;
+    params.realism.chroma_interpolated = true;
+    let camera_like = Simulator::new(&spec, &params).expect("sim");
+    let (light, _) = clean.render_frame(3);
+    let bytes = encode_jpeg(&light, 88, JpegChroma::Half420).expect("encode");
+    let want = image::load_from_memory(&bytes).expect("decode").to_rgb8();
+    let (got, _) = camera_like.render_frame(3);
+    assert!(got == want, "not the camera's 4:2:0 JPEG of the frame");
+}
