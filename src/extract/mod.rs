@@ -3,7 +3,7 @@
 //!
 //! Owns the background model ([`Background`]), the colour classes ([`colour`]), the
 //! Steger ridge detector (`detect`), the linking of ridge points (`link`) and the curves
-//! file. It does not touch camera models (it calls [`Camera::normalized_from_pixel`]) or
+//! file (`curves`, whose format is documented there). It does not touch camera models (it calls [`Camera::normalized_from_pixel`]) or
 //! anything downstream of curves.
 //!
 //! # Steps of [`Extractor::extract`]
@@ -93,38 +93,22 @@
 //! every scale; a stripe narrower than its scale's width reads up to ~1.4× its
 //! contrast. [`Curve::strength`] is in the same unit.
 //!
-//! # Curves file (JSON, version 1)
-//! | key | type | meaning |
-//! |---|---|---|
-//! | `format` | string | always `"crossline-curves"` |
-//! | `version` | integer | `1` |
-//! | `width`, `height` | integer | image size in pixels |
-//! | `lasers` | array of strings | laser names; a curve's `laser` indexes it |
-//! | `curves` | array | one object per curve, fields below |
-//! | `curves[].laser` | integer | 0 or 1 |
-//! | `curves[].points_px` | array of `[x, y]` | sub-pixel points in distorted pixels (pixel centres at integers), in order along the curve |
-//! | `curves[].points` | array of `[x, y]` | the same points, undistorted normalised coordinates |
-//! | `curves[].strength` | array of numbers | ridge strength of each point, grey levels |
-//! | `curves[].polyline` | array of `[x, y]` | Douglas–Peucker simplification of `points` |
-//!
-//! `points_px`, `points` and `strength` are parallel; points whose undistortion fails are
-//! dropped from all three.
 
 mod activate;
 pub mod background;
 mod checks;
 pub mod chroma;
 pub mod colour;
+mod curves;
 mod detect;
 mod faint;
 mod glow;
 mod link;
 pub mod local;
+mod response;
 pub mod rolling;
 pub mod score;
 pub mod yuyv;
-
-use std::path::Path;
 
 use image::RgbImage;
 use serde::{Deserialize, Serialize};
@@ -133,12 +117,10 @@ use crate::camera::Camera;
 pub use background::Background;
 pub use checks::Presence;
 pub use colour::{ColourLut, ColourParams, LaserColour};
+pub use curves::{Curve, CurvesFile, CURVES_FILE_VERSION};
 use detect::Detector;
 use link::Linker;
-
-/// Version of the curves file written by [`CurvesFile::to_json`].
-pub const CURVES_FILE_VERSION: u32 = 1;
-const CURVES_FILE_FORMAT: &str = "crossline-curves";
+use response::{response_rgb, DarkCells};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ExtractError {
@@ -346,100 +328,6 @@ pub const AUTO_SIGMAS_PX: [f64; 7] = [1.0, 1.3, 1.7, 2.2, 2.8, 3.5, 4.5];
 fn eigenvalue_per_grey_level(width: f64, sigma: f64) -> f64 {
     let s = width / (8.0 * 2f64.ln()).sqrt();
     s / (s * s + sigma * sigma).powf(1.5)
-}
-
-/// One laser curve of one frame.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Curve {
-    /// Index into [`ExtractParams::lasers`].
-    pub laser: u8,
-    /// Dense sub-pixel points in distorted pixels, in order along the curve.
-    pub points_px: Vec<[f32; 2]>,
-    /// The same points in undistorted normalised coordinates.
-    pub points: Vec<[f64; 2]>,
-    /// Ridge strength of each point, grey levels of stripe contrast.
-    pub strength: Vec<f32>,
-    /// Douglas–Peucker simplification of `points`, normalised coordinates.
-    pub polyline: Vec<[f64; 2]>,
-}
-
-impl Curve {
-    /// Length along `points_px`, pixels.
-    pub fn length_px(&self) -> f64 {
-        self.points_px
-            .windows(2)
-            .map(|w| {
-                let (dx, dy) = ((w[1][0] - w[0][0]) as f64, (w[1][1] - w[0][1]) as f64);
-                dx.hypot(dy)
-            })
-            .sum()
-    }
-
-    /// Length of the linked ridge (pixels): the length without the gaps the linker
-    /// jumped ([`link::MAX_GAP_PX`]), which no ridge point vouches for.
-    pub fn linked_length_px(&self) -> f64 {
-        link::linked_length_px(self.points_px.iter().copied())
-    }
-}
-
-/// The curves of one frame as written to disk (see the module doc for the format).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CurvesFile {
-    pub format: String,
-    pub version: u32,
-    pub width: u32,
-    pub height: u32,
-    pub lasers: Vec<String>,
-    pub curves: Vec<Curve>,
-}
-
-impl CurvesFile {
-    pub fn new(width: u32, height: u32, lasers: &[LaserColour], curves: Vec<Curve>) -> Self {
-        Self {
-            format: CURVES_FILE_FORMAT.into(),
-            version: CURVES_FILE_VERSION,
-            width,
-            height,
-            lasers: lasers.iter().map(|l| l.name.clone()).collect(),
-            curves,
-        }
-    }
-
-    pub fn to_json(&self) -> String {
-        // Serialising plain numbers and strings cannot fail.
-        serde_json::to_string(self).unwrap_or_default()
-    }
-
-    /// Parses a curves file; `path` only names the source in errors.
-    pub fn parse(text: &str, path: &Path) -> Result<Self, ExtractError> {
-        let err = |message: String| ExtractError::CurvesFile {
-            path: path.to_path_buf(),
-            message,
-        };
-        let file: Self = serde_json::from_str(text).map_err(|e| err(e.to_string()))?;
-        if file.format != CURVES_FILE_FORMAT {
-            return Err(err(format!(
-                "format is {:?}, expected {CURVES_FILE_FORMAT:?}",
-                file.format
-            )));
-        }
-        if file.version != CURVES_FILE_VERSION {
-            return Err(err(format!(
-                "version {} is not supported (expected {CURVES_FILE_VERSION})",
-                file.version
-            )));
-        }
-        Ok(file)
-    }
-
-    pub fn load(path: &Path) -> Result<Self, ExtractError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ExtractError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        Self::parse(&text, path)
-    }
 }
 
 /// Counts of the last frame, for logs and benchmarks.
@@ -862,81 +750,6 @@ impl TileFrame for WholeFrame<'_> {
         self.0
     }
     fn ensure(&mut self, _: &[bool], _: usize, _: usize) {}
-}
-
-/// Per cell of `faint::BLOCK · faint::DARK_CELL` px (`cells_x` per row), per channel:
-/// the grey levels the frame is lifted by before the background is subtracted; empty
-/// for no lift.
-#[derive(Default)]
-struct DarkCells {
-    lift: Vec<[u8; 3]>,
-    cells_x: usize,
-}
-
-/// The RGB input's response filler for [`Detector::prepare`]: laser `laser`'s response
-/// to the positive part of `frame − background`, the frame lifted per cell by `dark`,
-/// and the other-laser mask. Another input
-/// format (YUYV) needs its own filler and activation pass; the rest is shared.
-fn response_rgb<'a>(
-    lut: &'a ColourLut,
-    laser: u8,
-    frame: &'a RgbImage,
-    background: &'a RgbImage,
-    dark: &'a DarkCells,
-    local: bool,
-) -> impl FnMut(usize, usize, &mut [f32], &mut [u8]) + 'a {
-    let width = frame.width() as usize;
-    let (fr, bg) = (frame.as_raw(), background.as_raw());
-    const CELL_PX: usize = faint::BLOCK * faint::DARK_CELL;
-    let (dark, cells_x) = (&dark.lift[..], dark.cells_x);
-    move |y, x0, row, masked| {
-        let start = 3 * (y * width + x0);
-        let f = &fr[start..start + 3 * row.len()];
-        let b = &bg[start..start + 3 * row.len()];
-        let cell_row = (y / CELL_PX) * cells_x;
-        // Cell by cell, so the inner loop has one lift.
-        let mut i = 0;
-        while i < row.len() {
-            let (lift, end) = if dark.is_empty() {
-                ([0; 3], row.len())
-            } else {
-                let cx = ((x0 + i) / CELL_PX).min(cells_x - 1);
-                let end = if cx + 1 == cells_x {
-                    row.len()
-                } else {
-                    ((cx + 1) * CELL_PX - x0).min(row.len())
-                };
-                (dark.get(cell_row + cx).copied().unwrap_or([0; 3]), end)
-            };
-            for (((o, m), f), b) in row[i..end]
-                .iter_mut()
-                .zip(masked[i..end].iter_mut())
-                .zip(f[3 * i..3 * end].chunks_exact(3))
-                .zip(b[3 * i..3 * end].chunks_exact(3))
-            {
-                let (dr, dg, db) = (
-                    f[0].saturating_add(lift[0]).saturating_sub(b[0]),
-                    f[1].saturating_add(lift[1]).saturating_sub(b[1]),
-                    f[2].saturating_add(lift[2]).saturating_sub(b[2]),
-                );
-                let clipped = local && lut.own_clipped(laser, f);
-                let (r, hole, share) = if local {
-                    lut.response_local(laser, [dr, dg, db], f, clipped)
-                } else {
-                    // Against a laser-off frame the difference is the laser's
-                    // light alone, clipped cores included (a wide clipped top is
-                    // centred by the automatic scale), but for what changed since.
-                    let (r, hole) = lut.response_off(laser, [dr, dg, db], f);
-                    (r, hole, 0)
-                };
-                // Bit 1: the own channel clipped, which a flat top may be
-                // (`detect::width::FLAT_RATIO`); bits 2-7: the chromatic share.
-                *m = u8::from(hole) | (u8::from(clipped) << 1) | (share << detect::SHARE_SHIFT);
-                *o = r as f32;
-            }
-            i = end;
-        }
-    }
 }
 
 #[cfg(test)]

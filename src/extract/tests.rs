@@ -677,11 +677,11 @@ fn undistorted_points_and_polyline() {
     assert!((m - 200.0).abs() < 30.0, "strength {m}");
     // Round trip through the curves file.
     let file = CurvesFile::new(w, h, &ex.params().lasers, curves.clone());
-    let back = CurvesFile::parse(&file.to_json(), Path::new("mem.json")).expect("parse");
+    let back = CurvesFile::parse(&file.to_json(), std::path::Path::new("mem.json")).expect("parse");
     assert_eq!(back.curves.len(), 1);
     assert_eq!(back.curves[0].points_px, c.points_px);
     let bad = file.to_json().replace("\"version\":1", "\"version\":9");
-    assert!(CurvesFile::parse(&bad, Path::new("x.json")).is_err());
+    assert!(CurvesFile::parse(&bad, std::path::Path::new("x.json")).is_err());
 }
 
 #[test]
