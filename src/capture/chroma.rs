@@ -27,6 +27,29 @@ pub enum Rebuild {
     Interpolated,
 }
 
+/// The usual name of a sampling (`4:2:0`, `4:2:2`, `4:4:0`), or `None` for full
+/// colour.
+pub fn subsampling_name(rebuild: [Rebuild; 2]) -> Option<&'static str> {
+    match rebuild.map(|r| r != Rebuild::Full) {
+        [true, true] => Some("4:2:0"),
+        [true, false] => Some("4:2:2"),
+        [false, true] => Some("4:4:0"),
+        [false, false] => None,
+    }
+}
+
+/// Says once, for a user, that the frames' colour comes per two pixels and what that
+/// costs; nothing for full colour.
+pub fn tell_user(rebuild: [Rebuild; 2]) {
+    if let Some(name) = subsampling_name(rebuild) {
+        tracing::info!(
+            "the frames' colour is sampled {name} (their buffers say so): the stripes' centres \
+             are corrected for it, but the depth error is larger than with full colour \
+             (docs/extraction.md); use a full-colour camera mode if there is one"
+        );
+    }
+}
+
 /// How [`super::dump::decode_rgb`] rebuilds the chroma of `payload`, a buffer in
 /// `header`'s pixel format, along x and then y; `None` where the bytes do not say (a
 /// JPEG without a readable frame header, or with sampling factors other than equal or
@@ -138,6 +161,15 @@ mod tests {
         assert_eq!(of_jpeg(b"\x89PNG\r\n"), None);
         let whole = jpeg(S::R_4_2_0);
         assert_eq!(of_jpeg(&whole[..20]), None);
+    }
+
+    #[test]
+    fn samplings_have_their_names() {
+        use Rebuild::{Full, Interpolated, Repeated};
+        assert_eq!(subsampling_name([Interpolated; 2]), Some("4:2:0"));
+        assert_eq!(subsampling_name([Repeated, Full]), Some("4:2:2"));
+        assert_eq!(subsampling_name([Full, Interpolated]), Some("4:4:0"));
+        assert_eq!(subsampling_name([Full; 2]), None);
     }
 
     #[test]

@@ -102,6 +102,9 @@ pub fn extract_frames(
     let mut pass = frames.pass(camera)?;
     let chroma = frames.chroma();
     tracing::debug!("the frames' chroma as their bytes say (x, y): {chroma:?}");
+    if let Some(rebuild) = chroma {
+        crate::capture::chroma::tell_user(rebuild);
+    }
     let (mut extracted, mut first_bg, mut background_s) = (0, None, 0.0);
     let mut v = 0;
     let extractors = Mutex::new(Vec::new());

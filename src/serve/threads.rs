@@ -367,7 +367,9 @@ fn worker_loop(consumer: ring::Consumer, results: Sender<Extracted>, ctx: Worker
         let image = decode_checked(header, &slot.bytes, camera, shared, meta);
         if image.is_some() && shared.chroma.get().is_none() {
             if let Some(rebuild) = chroma::of_buffer(header, &slot.bytes) {
-                let _ = shared.chroma.set(rebuild);
+                if shared.chroma.set(rebuild).is_ok() {
+                    chroma::tell_user(rebuild);
+                }
             }
         }
         drop(slot);
