@@ -31,7 +31,7 @@ const CURVES_FILE_FORMAT: &str = "crossline-curves";
 /// One laser curve of one frame.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Curve {
-    /// Index into [`ExtractParams::lasers`].
+    /// Index into [`super::ExtractParams::lasers`].
     pub laser: u8,
     /// Dense sub-pixel points in distorted pixels, in order along the curve.
     pub points_px: Vec<[f32; 2]>,
