@@ -169,29 +169,43 @@ fn the_rebuild_a_jpeg_declares_is_the_one_its_pixels_show() {
     }
 }
 
-/// A stripe in a dark, flat frame from a 4:2:0 MJPEG camera (quality 90): its pixels
-/// cannot tell the extractor how the chroma was sampled, its JPEG's header can. Told
-/// so, the points are centred from the first frame as well as those of a 4:4:4 JPEG
-/// (whose quantisation is the floor here: 0.02-0.03 px); taken as full, they are
-/// pulled towards the blocks (measured 0.037, 0.024 and 0.118 px).
+/// How the extractor learns a frame's chroma sampling, in the test below.
+#[derive(Clone, Copy)]
+enum Learn {
+    /// From the JPEG's header.
+    Header,
+    /// Off the frame's pixels ([`Sampling::read`]).
+    Pixels,
+    /// Not at all: taken as full.
+    Nothing,
+}
+
+/// A stripe in a dark, flat frame from an MJPEG camera (quality 90). One straight
+/// stripe is all its pixels have to tell the sampling by. Across a horizontal stripe
+/// they tell 4:2:0 right, but in a 4:4:4 JPEG the stripe satisfies the interpolated
+/// relation across itself at some phases (docs/extraction.md), and its points are
+/// moved for a rebuild that never happened (measured 0.038 against 0.031 px, the worst
+/// median over 16 phases). The header says what was done: in 4:4:4
+/// nothing is moved, in 4:2:0 the points are moved back off the blocks (0.037 px);
+/// taken as full, 4:2:0 stays pulled (0.118 px).
 #[test]
 fn a_dark_mjpeg_frame_is_centred_by_what_its_header_says() {
     use JpegChroma as S;
     let (w, h) = (320u32, 120u32);
     let surface = |_: f64, _: f64| [12.0, 12.0, 12.0];
-    let worst = |sampling: S, know: bool| {
+    let worst = |sampling: S, learn: Learn| {
         (0..16)
             .map(|k| {
                 let mut ex = red_green_extractor(w, h);
                 let line = (60.03 + k as f64 / 8.0, 0.0);
                 let stripe = Some((line.0, line.1, 1.0, 150.0, [1.0, 0.1, 0.05]));
-                let (img, declared) =
-                    through_mjpeg(&frame((w, h), &surface, stripe, 0.5), sampling, 90);
+                let lit = frame((w, h), &surface, stripe, 0.5);
+                let (img, declared) = through_mjpeg(&lit, sampling, 90);
                 let (off, _) = through_mjpeg(&frame((w, h), &surface, None, 0.5), sampling, 90);
-                if know {
-                    ex.know_chroma(declared.expect("declared"));
-                } else {
-                    ex.sampling.sampling.settle();
+                match learn {
+                    Learn::Header => ex.know_chroma(declared.expect("declared")),
+                    Learn::Pixels => {}
+                    Learn::Nothing => ex.sampling.sampling.settle(),
                 }
                 let curves = ex.extract(&img, &Background::from_image(off));
                 let mut e = distance_errors(&curves, line, 20.0, w as f64);
@@ -200,25 +214,24 @@ fn a_dark_mjpeg_frame_is_centred_by_what_its_header_says() {
             })
             .fold(0f64, f64::max)
     };
-    // Its pixels: a dark frame and one straight stripe leave the sampling untold.
-    let mut ex = red_green_extractor(w, h);
-    let stripe = Some((60.3, 0.0, 1.0, 150.0, [1.0, 0.1, 0.05]));
-    let (img, _) = through_mjpeg(&frame((w, h), &surface, stripe, 0.5), S::Half420, 90);
-    ex.extract(&img, &Background::local(w, h));
-    assert!(
-        !ex.sampling.sampling.is_told(),
-        "{:?}",
-        ex.sampling.sampling
-    );
-    let floor = worst(S::Full, true);
-    let (told, full) = (worst(S::Half420, true), worst(S::Half420, false));
-    eprintln!("4:2:0 told {told:.4} px, taken as full {full:.4} px; 4:4:4 {floor:.4} px");
-    assert!(
-        told < 2.0 * floor,
-        "told: {told:.3} px, 4:4:4 {floor:.3} px"
+    let full_header = worst(S::Full, Learn::Header);
+    let full_pixels = worst(S::Full, Learn::Pixels);
+    let half_header = worst(S::Half420, Learn::Header);
+    let half_nothing = worst(S::Half420, Learn::Nothing);
+    eprintln!(
+        "4:4:4: header {full_header:.4}, pixels {full_pixels:.4} px; \
+         4:2:0: header {half_header:.4}, taken as full {half_nothing:.4} px"
     );
     assert!(
-        full > 2.0 * told,
-        "taken as full: {full:.3} px, told {told:.3}"
+        full_pixels > full_header,
+        "4:4:4 read off the pixels {full_pixels:.3} px, by its header {full_header:.3}"
+    );
+    assert!(
+        half_header < 2.0 * full_header,
+        "4:2:0 {half_header:.3} px, 4:4:4 {full_header:.3}"
+    );
+    assert!(
+        half_nothing > 2.0 * half_header,
+        "4:2:0 taken as full {half_nothing:.3} px, by its header {half_header:.3}"
     );
 }
