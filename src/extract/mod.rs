@@ -3,8 +3,8 @@
 //!
 //! Owns the background model ([`Background`]), the colour classes ([`colour`]), the
 //! Steger ridge detector (`detect`), the linking of ridge points (`link`) and the curves
-//! file (`curves`, whose format is documented there). It does not touch camera models (it calls [`Camera::normalized_from_pixel`]) or
-//! anything downstream of curves.
+//! file (`curves`, whose format is documented there). It does not touch camera models
+//! (it calls [`Camera::normalized_from_pixel`]) or anything downstream of curves.
 //!
 //! # Steps of [`Extractor::extract`]
 //! 1. *Colour* (input-format specific, RGB here): the positive part of

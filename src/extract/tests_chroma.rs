@@ -131,17 +131,9 @@ fn through_mjpeg(
     quality: u8,
 ) -> (RgbImage, Option<[Rebuild; 2]>) {
     let bytes = encode_jpeg(img, quality, chroma).expect("encode");
-    let (w, h) = img.dimensions();
-    let header = crate::capture::dump::DumpHeader {
-        fourcc: *b"MJPG",
-        width: w,
-        height: h,
-        bytes_per_line: 0,
-        interval_num: 1,
-        interval_den: 30,
-        device: "test".into(),
-        card: "test".into(),
-    };
+    let mut header = crate::capture::dump::tests::header();
+    (header.fourcc, header.bytes_per_line) = (*b"MJPG", 0);
+    (header.width, header.height) = img.dimensions();
     let rgb = crate::capture::dump::decode_rgb(&header, &bytes).expect("decode");
     (rgb, crate::capture::chroma::of_buffer(&header, &bytes))
 }
@@ -194,6 +186,8 @@ fn a_dark_mjpeg_frame_is_centred_by_what_its_header_says() {
     let (w, h) = (320u32, 120u32);
     let surface = |_: f64, _: f64| [12.0, 12.0, 12.0];
     let worst = |sampling: S, learn: Learn| {
+        let (off, _) = through_mjpeg(&frame((w, h), &surface, None, 0.5), sampling, 90);
+        let off = Background::from_image(off);
         (0..16)
             .map(|k| {
                 let mut ex = red_green_extractor(w, h);
@@ -201,13 +195,12 @@ fn a_dark_mjpeg_frame_is_centred_by_what_its_header_says() {
                 let stripe = Some((line.0, line.1, 1.0, 150.0, [1.0, 0.1, 0.05]));
                 let lit = frame((w, h), &surface, stripe, 0.5);
                 let (img, declared) = through_mjpeg(&lit, sampling, 90);
-                let (off, _) = through_mjpeg(&frame((w, h), &surface, None, 0.5), sampling, 90);
                 match learn {
                     Learn::Header => ex.know_chroma(declared.expect("declared")),
                     Learn::Pixels => {}
                     Learn::Nothing => ex.sampling.sampling.settle(),
                 }
-                let curves = ex.extract(&img, &Background::from_image(off));
+                let curves = ex.extract(&img, &off);
                 let mut e = distance_errors(&curves, line, 20.0, w as f64);
                 e.sort_by(f64::total_cmp);
                 e.get(e.len() / 2).copied().unwrap_or(0.0).abs()

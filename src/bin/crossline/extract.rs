@@ -6,6 +6,7 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context};
 use crossline::camera::Camera;
+use crossline::capture::chroma::Rebuild;
 use crossline::extract::{Background, Curve, CurvesFile, ExtractParams, Extractor, LaserColour};
 use image::RgbImage;
 
@@ -65,9 +66,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(w) = args.line_width_px {
         params.line_width_px = Some(w);
     }
-    let frame = load_rgb(&args.input)?;
+    let (frame, chroma) = load_rgb(&args.input)?;
     let background = match &args.background {
-        Some(path) => Background::from_image(load_rgb(path)?),
+        Some(path) => Background::from_image(load_rgb(path)?.0),
         None => Background::local(frame.width(), frame.height()),
     };
     let camera = match &args.camera {
@@ -91,10 +92,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     };
     let mut extractor = Extractor::new(&params, &camera).context("extraction parameters")?;
     // A JPEG says how its colour was sampled; a PNG's is read off its pixels.
-    if let Some(rebuild) = std::fs::read(&args.input)
-        .ok()
-        .and_then(|bytes| crossline::capture::chroma::of_jpeg(&bytes))
-    {
+    if let Some(rebuild) = chroma {
         extractor.know_chroma(rebuild);
     }
     let curves = extractor
@@ -126,10 +124,15 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-fn load_rgb(path: &Path) -> anyhow::Result<RgbImage> {
-    Ok(image::open(path)
-        .with_context(|| format!("reading image {}", path.display()))?
-        .to_rgb8())
+/// An image file in RGB, and for a JPEG how its colour was sampled (its header says,
+/// [`crossline::capture::chroma::of_jpeg`]); the file is read once for both.
+fn load_rgb(path: &Path) -> anyhow::Result<(RgbImage, Option<[Rebuild; 2]>)> {
+    let context = || format!("reading image {}", path.display());
+    let bytes = std::fs::read(path).with_context(context)?;
+    let rgb = image::load_from_memory(&bytes)
+        .with_context(context)?
+        .to_rgb8();
+    Ok((rgb, crossline::capture::chroma::of_jpeg(&bytes)))
 }
 
 /// The `[extract]` table of a crossline.toml (defaults for absent keys).
