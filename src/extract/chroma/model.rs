@@ -54,7 +54,7 @@ pub(super) struct ShiftTable {
 }
 
 impl ShiftTable {
-    /// The table of `rebuild`, built once per process (some 20 ms); `None` for
+    /// The table of `rebuild`, built once per process (some 10 ms); `None` for
     /// [`Rebuild::Full`].
     pub(super) fn of(rebuild: Rebuild) -> Option<&'static Self> {
         static REPEATED: OnceLock<ShiftTable> = OnceLock::new();
@@ -74,19 +74,30 @@ impl ShiftTable {
         let cells = SIGMA_S.2 * SIGMA_W.2 * SHARE.2;
         let mut coefficients = vec![[0f32; HARMONICS]; cells];
         let mut apparent = vec![0f32; cells];
+        // The profiles depend on the width and phase only, and the detector's sums are
+        // linear in the profile: per scale, each profile is summed once and the sums
+        // mixed per share (`model_1d` does the same one cell at a time).
+        let profiles: Vec<Vec<Profiles>> = (0..SIGMA_W.2)
+            .map(|iw| {
+                (0..PHASES)
+                    .map(|m| {
+                        let phase = 2.0 * m as f64 / PHASES as f64;
+                        Profiles::new(rebuild, f64::from(SIGMA_W.value(iw)), phase)
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut phases = [(0f64, 0f64); PHASES];
         for is in 0..SIGMA_S.2 {
             let sigma_s = f64::from(SIGMA_S.value(is));
             let kernels = Kernels::new(sigma_s);
-            for iw in 0..SIGMA_W.2 {
-                let sigma_w = f64::from(SIGMA_W.value(iw));
+            for (iw, of_width) in profiles.iter().enumerate() {
+                let sums: Vec<[Sums; 2]> = of_width.iter().map(|p| p.sums(&kernels)).collect();
                 for ih in 0..SHARE.2 {
                     let share = f64::from(SHARE.value(ih));
-                    let phases: Vec<(f64, f64)> = (0..PHASES)
-                        .map(|m| {
-                            let phase = 2.0 * m as f64 / PHASES as f64;
-                            model_1d(rebuild, &kernels, sigma_w, share, phase)
-                        })
-                        .collect();
+                    for ((out, p), s) in phases.iter_mut().zip(of_width).zip(&sums) {
+                        *out = p.shift(s, share);
+                    }
                     let cell = Self::index(is, iw, ih);
                     let var = phases.iter().map(|p| p.1).sum::<f64>() / PHASES as f64;
                     apparent[cell] = (var - sigma_s * sigma_s).max(0.0).sqrt() as f32;
@@ -198,31 +209,30 @@ impl ShiftTable {
 /// Pixels of the 1D model's profile; the stripe sits near its middle.
 const MODEL_PX: usize = 64;
 
-/// The 1D model: a Gaussian stripe of std `sigma_w` (sampled at pixel centres, its
-/// width grown by a pixel's box) centred `phase` px after a block's first pixel, the
-/// share `share` of it through the block average and `rebuild`. Returns the detector's
-/// centre of that less its centre of the stripe alone, and the width² it measures
-/// there (smoothed response over curvature, less the offset², as
-/// [`point_moves`] reads a ridge point).
-fn model_1d(
-    rebuild: Rebuild,
-    kernels: &Kernels,
-    sigma_w: f64,
-    share: f64,
-    phase: f64,
-) -> (f64, f64) {
-    let centre = (MODEL_PX / 2) as f64 + phase;
-    let var = sigma_w * sigma_w + 1.0 / 12.0;
-    let stripe: Vec<f64> = (0..MODEL_PX)
-        .map(|x| (-0.5 * (x as f64 - centre).powi(2) / var).exp())
-        .collect();
-    let blocks: Vec<f64> = stripe
-        .chunks_exact(2)
-        .map(|p| 0.5 * (p[0] + p[1]))
-        .collect();
-    let last = blocks.len() - 1;
-    let rebuilt: Vec<f64> = (0..MODEL_PX)
-        .map(|x| {
+/// The detector's sums (smoothed, first and second derivative) at the three pixels
+/// nearest a profile's centre.
+type Sums = [[f64; 3]; 3];
+
+/// The 1D model's two profiles: a Gaussian stripe of std `sigma_w` (sampled at pixel
+/// centres, its width grown by a pixel's box) centred `phase` px after a block's first
+/// pixel, and the same through the block average and `rebuild`.
+struct Profiles {
+    stripe: [f64; MODEL_PX],
+    rebuilt: [f64; MODEL_PX],
+    centre: f64,
+    var: f64,
+}
+
+impl Profiles {
+    fn new(rebuild: Rebuild, sigma_w: f64, phase: f64) -> Self {
+        let centre = (MODEL_PX / 2) as f64 + phase;
+        let var = sigma_w * sigma_w + 1.0 / 12.0;
+        let stripe: [f64; MODEL_PX] =
+            std::array::from_fn(|x| (-0.5 * (x as f64 - centre).powi(2) / var).exp());
+        let blocks: [f64; MODEL_PX / 2] =
+            std::array::from_fn(|b| 0.5 * (stripe[2 * b] + stripe[2 * b + 1]));
+        let last = blocks.len() - 1;
+        let rebuilt = std::array::from_fn(|x| {
             let b = x / 2;
             match rebuild {
                 Rebuild::Full => stripe[x],
@@ -236,31 +246,60 @@ fn model_1d(
                     0.75 * blocks[b] + 0.25 * blocks[next]
                 }
             }
-        })
-        .collect();
-    let seen: Vec<f64> = stripe
-        .iter()
-        .zip(&rebuilt)
-        .map(|(s, r)| (1.0 - share) * s + share * r)
-        .collect();
-    match (
-        ridge(&seen, kernels, centre),
-        ridge(&stripe, kernels, centre),
-    ) {
-        (Some(a), Some(b)) => (a.0 - b.0, a.1),
-        _ => (0.0, var),
+        });
+        Self {
+            stripe,
+            rebuilt,
+            centre,
+            var,
+        }
+    }
+
+    /// The detector's sums over the stripe alone and over the rebuilt one.
+    fn sums(&self, kernels: &Kernels) -> [Sums; 2] {
+        let around = self.centre.round() as usize;
+        [
+            sums(&self.stripe, kernels, around),
+            sums(&self.rebuilt, kernels, around),
+        ]
+    }
+
+    /// The detector's centre of the profile of which the share `share` went through
+    /// the rebuild, less its centre of the stripe alone, and the width² it measures
+    /// there (smoothed response over curvature, less the offset², as [`point_moves`]
+    /// reads a ridge point).
+    ///
+    /// [`point_moves`]: super::point_moves
+    fn shift(&self, [stripe, rebuilt]: &[Sums; 2], share: f64) -> (f64, f64) {
+        let seen: Sums = std::array::from_fn(|j| {
+            std::array::from_fn(|k| (1.0 - share) * stripe[j][k] + share * rebuilt[j][k])
+        });
+        let around = self.centre.round() as usize;
+        match (ridge(&seen, around), ridge(stripe, around)) {
+            (Some(a), Some(b)) => (a.0 - b.0, a.1),
+            _ => (0.0, self.var),
+        }
     }
 }
 
-/// The detector's 1D centre of `profile` near `near` (at the pixel whose offset `t`,
-/// the Taylor step of the log of the smoothed profile `g` as the detector takes it,
-/// is at most half a pixel), and the width² it measures there, `−g/d2 − t²`.
-fn ridge(profile: &[f64], kernels: &Kernels, near: f64) -> Option<(f64, f64)> {
+/// The 1D model of one cell and phase ([`Profiles::shift`]).
+#[cfg(test)]
+fn model_1d(
+    rebuild: Rebuild,
+    kernels: &Kernels,
+    sigma_w: f64,
+    share: f64,
+    phase: f64,
+) -> (f64, f64) {
+    let profiles = Profiles::new(rebuild, sigma_w, phase);
+    profiles.shift(&profiles.sums(kernels), share)
+}
+
+/// The detector's sums of `profile` at the pixels `around − 1 ..= around + 1`.
+fn sums(profile: &[f64], kernels: &Kernels, around: usize) -> Sums {
     let r = kernels.radius;
-    let around = near.round() as usize;
-    // (|t|, centre, width²) of the pixel with the smallest offset.
-    let mut best: Option<(f64, f64, f64)> = None;
-    for j in around - 1..=around + 1 {
+    std::array::from_fn(|d| {
+        let j = around + d - 1;
         let (mut g, mut d1, mut d2) = (0.0, 0.0, 0.0);
         for i in 0..=2 * r {
             let v = profile[j + i - r];
@@ -268,6 +307,19 @@ fn ridge(profile: &[f64], kernels: &Kernels, near: f64) -> Option<(f64, f64)> {
             d1 += v * f64::from(kernels.k1[i]);
             d2 += v * f64::from(kernels.k2[i]);
         }
+        [g, d1, d2]
+    })
+}
+
+/// The detector's 1D centre from the sums at `around − 1 ..= around + 1` (at the pixel
+/// whose offset `t`, the Taylor step of the log of the smoothed profile `g` as the
+/// detector takes it, is at most half a pixel), and the width² it measures there,
+/// `−g/d2 − t²`.
+fn ridge(sums: &Sums, around: usize) -> Option<(f64, f64)> {
+    // (|t|, centre, width²) of the pixel with the smallest offset.
+    let mut best: Option<(f64, f64, f64)> = None;
+    for (d, &[g, d1, d2]) in sums.iter().enumerate() {
+        let j = around + d - 1;
         if d2 >= 0.0 {
             continue;
         }
