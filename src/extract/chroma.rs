@@ -244,33 +244,41 @@ impl Sampling {
                 clipped,
             )
         };
-        let (mut cr, mut cb, mut clipped) = (Vec::new(), Vec::new(), Vec::new());
         for axis in 0..2 {
             if self.told[axis] {
                 continue;
             }
-            let mut sums = Residuals::default();
-            let mut line = |pixels: &mut dyn Iterator<Item = usize>| {
-                cr.clear();
-                cb.clear();
-                clipped.clear();
-                for i in pixels {
-                    let (r, b, k) = chroma(i);
-                    cr.push(r);
-                    cb.push(b);
-                    clipped.push(k);
-                }
-                sums.add_line(&cr, &clipped);
-                sums.add_line(&cb, &clipped);
+            // The lines read (rows along x, columns along y), gathered row by row into
+            // one buffer per quantity: walked down one at a time, the columns would
+            // touch every cache line of the frame once each.
+            let (lines, len): (Vec<usize>, usize) = if axis == 0 {
+                ((SAMPLE_EVERY / 2..h).step_by(SAMPLE_EVERY).collect(), w)
+            } else {
+                ((SAMPLE_EVERY / 2..w).step_by(SAMPLE_EVERY).collect(), h)
+            };
+            let n = lines.len() * len;
+            let (mut cr, mut cb, mut clipped) = (vec![0f32; n], vec![0f32; n], vec![false; n]);
+            let mut put = |at: usize, i: usize| {
+                (cr[at], cb[at], clipped[at]) = chroma(i);
             };
             if axis == 0 {
-                for y in (SAMPLE_EVERY / 2..h).step_by(SAMPLE_EVERY) {
-                    line(&mut (0..w).map(|x| 3 * (y * w + x)));
+                for (k, &y) in lines.iter().enumerate() {
+                    for x in 0..w {
+                        put(k * len + x, 3 * (y * w + x));
+                    }
                 }
             } else {
-                for x in (SAMPLE_EVERY / 2..w).step_by(SAMPLE_EVERY) {
-                    line(&mut (0..h).map(|y| 3 * (y * w + x)));
+                for y in 0..h {
+                    for (k, &x) in lines.iter().enumerate() {
+                        put(k * len + y, 3 * (y * w + x));
+                    }
                 }
+            }
+            let mut sums = Residuals::default();
+            for k in 0..lines.len() {
+                let span = k * len..(k + 1) * len;
+                sums.add_line(&cr[span.clone()], &clipped[span.clone()]);
+                sums.add_line(&cb[span.clone()], &clipped[span]);
             }
             if let Some((rebuild, offset)) = sums.decide() {
                 self.rebuild[axis] = rebuild;
