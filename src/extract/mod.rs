@@ -368,11 +368,6 @@ pub struct Extractor {
     grown: Vec<bool>,
     /// No lens distortion: points skip the undistortion.
     undistorted_camera: bool,
-    /// Per ridge point of the detector (by index, since its last `detect`): its
-    /// undistorted normalised coordinates, once worked out. Each laser's points are
-    /// linked once per follow round and once more at the end, and an undistortion is a
-    /// Newton iteration (kept, a dive frame's extraction went from 8.8 to 8.3 ms).
-    normalised: Vec<Normalised>,
     stats: ExtractStats,
     /// The background in YUV and the scratch frame of [`Self::extract_yuyv`].
     yuv: Option<yuyv::BackgroundYuv>,
@@ -424,7 +419,6 @@ impl Extractor {
         let tiles = detector.tiles_x * detector.tiles_y;
         Ok(Self {
             undistorted_camera: camera.distortion.is_zero(),
-            normalised: Vec::new(),
             active: vec![vec![false; tiles]; params.lasers.len()],
             white: vec![false; tiles],
             grown: vec![false; tiles],
@@ -537,7 +531,6 @@ impl Extractor {
             );
             self.detector
                 .detect(&self.active[laser], self.params.low_contrast);
-            self.normalised.clear();
             let first = curves.len();
             self.link_into(laser as u8, &mut curves, false);
             // Follow the curves out of the active tiles: a stripe fading below
@@ -618,16 +611,17 @@ impl Extractor {
         self
     }
 
-    /// Links the detector's points into `curves` of `laser`; with `glow`, each point
-    /// moved off the glow step under it ([`glow::glow_moves`]).
-    fn link_into(&mut self, laser: u8, curves: &mut Vec<Curve>, glow: bool) {
+    /// Links the detector's points into `curves` of `laser`. With `last`, each point is
+    /// moved off the glow step under it ([`glow::glow_moves`]) and off the chroma
+    /// rebuild's pull, undistorted, and its curve simplified; without, the curves hold
+    /// their pixel points alone, which is all the follow rounds read (where the curves
+    /// end), so that each point is undistorted (a Newton iteration) once a frame.
+    fn link_into(&mut self, laser: u8, curves: &mut Vec<Curve>, last: bool) {
         let det = &self.detector;
         let camera = &self.camera;
         let params = &self.params;
         let undistorted_camera = self.undistorted_camera;
-        let cache = &mut self.normalised;
         let chroma_moves = &self.chroma_moves;
-        cache.resize(det.points.len(), Normalised::Unknown);
         self.linker.link(
             &det.points,
             &det.index,
@@ -643,16 +637,25 @@ impl Extractor {
                 let mut curve = Curve {
                     laser,
                     points_px: Vec::with_capacity(chain.len()),
-                    points: Vec::with_capacity(chain.len()),
+                    points: Vec::with_capacity(if last { chain.len() } else { 0 }),
                     strength: Vec::with_capacity(chain.len()),
                     polyline: Vec::new(),
                 };
-                let mut moves = if glow {
-                    glow::glow_moves(det, chain)
-                } else {
-                    vec![0.0; chain.len()]
-                };
-                if glow && !chroma_moves.is_empty() {
+                if !last {
+                    for &i in chain {
+                        let p = &det.points[i as usize];
+                        curve.points_px.push([p.x, p.y]);
+                        curve.strength.push(p.strength);
+                    }
+                    if curve.points_px.len() >= 2
+                        && curve.linked_length_px() >= params.min_curve_length_px
+                    {
+                        curves.push(curve);
+                    }
+                    return;
+                }
+                let mut moves = glow::glow_moves(det, chain);
+                if !chroma_moves.is_empty() {
                     for (m, &i) in moves.iter_mut().zip(chain) {
                         *m += chroma_moves[i as usize];
                     }
@@ -665,9 +668,6 @@ impl Extractor {
                     let normalized = if undistorted_camera {
                         let (x, y) = camera.distorted_from_pixel(u, v);
                         Some([x, y])
-                    } else if shift == 0.0 {
-                        // Where the point stayed where the detector found it.
-                        cache[i as usize].get_or_insert(|| camera.normalized_from_pixel(u, v))
                     } else {
                         camera.normalized_from_pixel(u, v)
                     };
@@ -692,29 +692,6 @@ impl Extractor {
                 curves.push(curve);
             },
         );
-    }
-}
-
-/// A ridge point's undistorted normalised coordinates, as far as worked out
-/// ([`Extractor::normalised`]).
-#[derive(Clone, Copy, Debug)]
-enum Normalised {
-    Unknown,
-    /// Where the camera model has no inverse.
-    Outside,
-    At([f64; 2]),
-}
-
-impl Normalised {
-    /// The coordinates, from `make` the first time.
-    fn get_or_insert(&mut self, make: impl FnOnce() -> Option<[f64; 2]>) -> Option<[f64; 2]> {
-        if let Self::Unknown = self {
-            *self = make().map_or(Self::Outside, Self::At);
-        }
-        match *self {
-            Self::At(n) => Some(n),
-            Self::Outside | Self::Unknown => None,
-        }
     }
 }
 
