@@ -73,7 +73,14 @@ impl Extractor {
     /// a wide one fills a tile with no coloured fringe in it). A cheap byte-wise test
     /// (any channel of the difference reaching `min_value`) runs over every tile-wide
     /// chunk of every row; the look-up table only on chunks that pass.
-    pub(super) fn activate_rgb(&mut self, frame: &RgbImage, background: &RgbImage, local: bool) {
+    /// `background_id`: the background's [`super::Background::id`], `None` for one
+    /// made for this frame.
+    pub(super) fn activate_rgb(
+        &mut self,
+        frame: &RgbImage,
+        (background, background_id): (&RgbImage, Option<u64>),
+        local: bool,
+    ) {
         for a in &mut self.active {
             a.fill(false);
         }
@@ -131,7 +138,7 @@ impl Extractor {
         if self.params.faint_activation && !self.yuyv_frame {
             self.faint.activate(
                 fr,
-                bg,
+                (bg, background_id),
                 (w, self.detector.height),
                 (tile, tiles_x),
                 self.lut.channels(),

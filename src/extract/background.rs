@@ -17,7 +17,13 @@ pub struct Background {
     /// No laser-off frame: the extractor estimates each frame's own
     /// ([`super::local`]); `image` is black.
     local: bool,
+    /// New for each background made, kept by its clones: the image cannot change, so
+    /// what an extractor derives from it once holds while the id does ([`Self::id`]).
+    id: u64,
 }
+
+/// The next [`Background::id`].
+static NEXT_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
 impl Background {
     /// A laser-off frame.
@@ -25,6 +31,7 @@ impl Background {
         Self {
             image,
             local: false,
+            id: NEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
         }
     }
 
@@ -62,6 +69,14 @@ impl Background {
 
     pub fn image(&self) -> &RgbImage {
         &self.image
+    }
+
+    /// Tells this background's pixels from any other's: unique to each background
+    /// made (a laser-off frame, a median, a rolling median's update), kept by clones.
+    /// The extractor keeps the background's block sums while it holds
+    /// ([`super::faint`]).
+    pub fn id(&self) -> u64 {
+        self.id
     }
 }
 

@@ -70,14 +70,18 @@ pub(super) struct FaintRidges {
     bh: usize,
     /// Per channel, per block: the sum of the difference over its `BLOCK²` pixels.
     sums: [Vec<i16>; 3],
-    /// Per block: the background's sum over it, per channel (the surface's colour);
-    /// measured against a local background only.
+    /// Per block: the background's sum over it, per channel (the surface's colour
+    /// against a local background).
     surface: Vec<[u16; 3]>,
+    /// The [`super::Background::id`] whose sums `surface` holds; `None` for a
+    /// background made for its frame, summed again each time.
+    surface_of: Option<u64>,
+    /// Per block: the frame's sum over it, per channel.
+    frame_sums: Vec<[u16; 3]>,
     /// Per block: bit `c` = ridge across x in channel `c`, bit `3 + c` = across y.
     flags: Vec<u8>,
-    row: Vec<i16>,
-    /// The background's four-row sums of one block row (a local background only).
-    brow: Vec<u16>,
+    /// The four-row sums of one block row.
+    row: Vec<u16>,
     hist: Vec<u32>,
     /// Per region of `REGION` × `REGION` blocks, per channel: the ridge height a block
     /// there must reach.
@@ -97,7 +101,7 @@ impl FaintRidges {
     pub fn activate(
         &mut self,
         frame: &[u8],
-        background: &[u8],
+        (background, background_id): (&[u8], Option<u64>),
         (width, height): (usize, usize),
         (tile, tiles_x): (usize, usize),
         channels: &[[bool; 3]],
@@ -108,7 +112,7 @@ impl FaintRidges {
         if bw < 2 * SIDE_BLOCKS + 1 || bh < 2 * SIDE_BLOCKS + 1 {
             return;
         }
-        self.sum_blocks(frame, background, width, bw, bh, local);
+        self.sum_blocks(frame, (background, background_id), width, bw, bh);
         let threshold = self.threshold();
         self.region_thresholds(threshold);
         self.mark_ridges(local);
@@ -198,16 +202,18 @@ impl FaintRidges {
         &img[y * stride..(y + 1) * stride]
     }
 
-    /// Block sums of the signed difference, per channel: signed, so that the noise is
-    /// the same where the frame is at its background and where a glow lifts it.
+    /// Per block and channel, the sums of the frame less those of the background
+    /// (into `sums`), and the background's own (into `surface`). The difference is
+    /// signed, so that the noise is the same where the frame is at its background and
+    /// where a glow lifts it. A background's sums are kept while its id does: a
+    /// laser-off frame or a median serves many frames.
     fn sum_blocks(
         &mut self,
         frame: &[u8],
-        background: &[u8],
+        (background, background_id): (&[u8], Option<u64>),
         width: usize,
         bw: usize,
         bh: usize,
-        surface: bool,
     ) {
         if (self.bw, self.bh) != (bw, bh) {
             self.bw = bw;
@@ -216,61 +222,72 @@ impl FaintRidges {
                 *s = vec![0; bw * bh];
             }
             self.flags = vec![0; bw * bh];
+            self.surface_of = None;
         }
-        self.surface
-            .resize(if surface { bw * bh } else { 0 }, [0; 3]);
-        self.row.resize(3 * width, 0);
-        self.brow.resize(if surface { 3 * width } else { 0 }, 0);
+        if background_id.is_none() || background_id != self.surface_of {
+            Self::block_sums(
+                background,
+                width,
+                (bw, bh),
+                &mut self.row,
+                &mut self.surface,
+            );
+            self.surface_of = background_id;
+        }
+        Self::block_sums(frame, width, (bw, bh), &mut self.row, &mut self.frame_sums);
+        let [r, g, b] = &mut self.sums;
+        for ((((r, g), b), f), s) in r
+            .iter_mut()
+            .zip(g.iter_mut())
+            .zip(b.iter_mut())
+            .zip(&self.frame_sums)
+            .zip(&self.surface)
+        {
+            // At most 16 · 255 each: the difference fits an i16.
+            *r = f[0] as i16 - s[0] as i16;
+            *g = f[1] as i16 - s[1] as i16;
+            *b = f[2] as i16 - s[2] as i16;
+        }
+    }
+
+    /// Per block (`bw × bh` of them), per channel: the sum of packed RGB `image`
+    /// (`width` px wide) over the block's `BLOCK²` pixels, into `out`; `row` is
+    /// scratch.
+    fn block_sums(
+        image: &[u8],
+        width: usize,
+        (bw, bh): (usize, usize),
+        row: &mut Vec<u16>,
+        out: &mut Vec<[u16; 3]>,
+    ) {
         let stride = 3 * width;
+        row.resize(stride, 0);
+        out.resize(bw * bh, [0; 3]);
         for by in 0..bh {
             let y = BLOCK * by;
-            let (f0, f1, f2, f3) = (
-                Self::row_of(frame, stride, y),
-                Self::row_of(frame, stride, y + 1),
-                Self::row_of(frame, stride, y + 2),
-                Self::row_of(frame, stride, y + 3),
-            );
-            let (b0, b1, b2, b3) = (
-                Self::row_of(background, stride, y),
-                Self::row_of(background, stride, y + 1),
-                Self::row_of(background, stride, y + 2),
-                Self::row_of(background, stride, y + 3),
+            let (p0, p1, p2, p3) = (
+                Self::row_of(image, stride, y),
+                Self::row_of(image, stride, y + 1),
+                Self::row_of(image, stride, y + 2),
+                Self::row_of(image, stride, y + 3),
             );
             // One pass over the block's four rows, all slices of one length: the
             // compiler vectorises it.
-            let row = &mut self.row[..stride];
+            let row = &mut row[..stride];
             for i in 0..stride {
-                let f = i16::from(f0[i]) + i16::from(f1[i]) + i16::from(f2[i]) + i16::from(f3[i]);
-                let b = i16::from(b0[i]) + i16::from(b1[i]) + i16::from(b2[i]) + i16::from(b3[i]);
-                row[i] = f - b;
+                row[i] = u16::from(p0[i]) + u16::from(p1[i]) + u16::from(p2[i]) + u16::from(p3[i]);
             }
-            if surface {
-                let brow = &mut self.brow[..stride];
-                for i in 0..stride {
-                    brow[i] =
-                        u16::from(b0[i]) + u16::from(b1[i]) + u16::from(b2[i]) + u16::from(b3[i]);
-                }
-                for (bx, px) in brow.chunks_exact(3 * BLOCK).take(bw).enumerate() {
-                    let mut sum = [0u16; 3];
-                    for p in px.chunks_exact(3) {
-                        for c in 0..3 {
-                            sum[c] += p[c];
-                        }
-                    }
-                    self.surface[by * bw + bx] = sum;
-                }
-            }
-            let out = by * bw;
-            for (bx, px) in self.row.chunks_exact(3 * BLOCK).take(bw).enumerate() {
-                let (mut r, mut g, mut b) = (0i16, 0i16, 0i16);
+            for (o, px) in out[by * bw..(by + 1) * bw]
+                .iter_mut()
+                .zip(row.chunks_exact(3 * BLOCK))
+            {
+                let mut sum = [0u16; 3];
                 for p in px.chunks_exact(3) {
-                    r += p[0];
-                    g += p[1];
-                    b += p[2];
+                    sum[0] += p[0];
+                    sum[1] += p[1];
+                    sum[2] += p[2];
                 }
-                self.sums[0][out + bx] = r;
-                self.sums[1][out + bx] = g;
-                self.sums[2][out + bx] = b;
+                *o = sum;
             }
         }
     }

@@ -55,7 +55,15 @@ fn activate_against(w: usize, h: usize, f: &[u8], b: &[u8], local: bool) -> (Vec
     let (tx, ty) = (w.div_ceil(tile), h.div_ceil(tile));
     let mut active = vec![vec![false; tx * ty]; 2];
     let mut faint = FaintRidges::default();
-    faint.activate(f, b, (w, h), (tile, tx), &RED_GREEN, &mut active, local);
+    faint.activate(
+        f,
+        (b, None),
+        (w, h),
+        (tile, tx),
+        &RED_GREEN,
+        &mut active,
+        local,
+    );
     (active, faint.noise)
 }
 
@@ -170,7 +178,7 @@ fn noise_and_glow_are_no_ridges() {
     // The same noise with the thresholds taken from a noise-free estimate is
     // ridges all over: the measured noise is what keeps it quiet.
     let mut faint = FaintRidges::default();
-    faint.sum_blocks(&f, &b, w, w / BLOCK, h / BLOCK, false);
+    faint.sum_blocks(&f, (&b, None), w, w / BLOCK, h / BLOCK);
     faint.noise = 0.0;
     faint.region_thresholds(MIN_RIDGE_SUM);
     faint.mark_ridges(false);
@@ -215,7 +223,7 @@ fn textured_glow_raises_its_regions_threshold() {
     );
     // With the frame's threshold everywhere, the texture activates green widely.
     let mut faint = FaintRidges::default();
-    faint.sum_blocks(&f, &b, w, w / BLOCK, h / BLOCK, false);
+    faint.sum_blocks(&f, (&b, None), w, w / BLOCK, h / BLOCK);
     let threshold = faint.threshold();
     faint.region_thresholds(threshold);
     faint.region_threshold.fill([threshold as i16; 3]);
@@ -299,4 +307,35 @@ fn texture_in_the_surfaces_colour_is_no_faint_stripe_against_a_local_background(
         on >= 20 && hit * 10 >= on * 8,
         "{hit} of {on} tiles of the stripe active"
     );
+}
+
+/// A background's block sums are kept while its id holds and made again when it
+/// changes: two frames against one laser-off frame, then against another, give the
+/// sums of a scratch that never keeps any.
+#[test]
+fn a_backgrounds_sums_are_kept_while_its_id_holds() {
+    let (w, h) = (128, 96);
+    let stripe = |y0: f64| {
+        move |x: f64, y: f64| {
+            let d = y - y0 - 0.2 * x;
+            [40.0 * (-0.5 * d * d).exp(), 0.0, 0.0]
+        }
+    };
+    let (f1, b1) = frame_on(GREY, w, h, 2.0, 3, stripe(20.0));
+    let (f2, _) = frame_on(GREY, w, h, 2.0, 4, stripe(50.0));
+    let (_, b2) = frame_on([90.0, 30.0, 60.0], w, h, 2.0, 5, stripe(0.0));
+    let (mut kept, mut fresh) = (FaintRidges::default(), FaintRidges::default());
+    for (f, b, id) in [
+        (&f1, &b1, Some(1)),
+        (&f2, &b1, Some(1)),
+        (&f1, &b2, Some(2)),
+        (&f2, &b2, Some(2)),
+        (&f1, &b1, None),
+    ] {
+        kept.sum_blocks(f, (b, id), w, w / BLOCK, h / BLOCK);
+        fresh.sum_blocks(f, (b, None), w, w / BLOCK, h / BLOCK);
+        assert_eq!(kept.sums, fresh.sums, "background {id:?}");
+        assert_eq!(kept.surface, fresh.surface, "background {id:?}");
+        assert_eq!(kept.surface_of, id);
+    }
 }

@@ -492,12 +492,16 @@ impl Extractor {
             let mut image = std::mem::take(&mut self.local_image);
             self.local.estimate_into(frame, &mut image);
             self.local_active = true;
-            let curves = self.extract_from(&mut WholeFrame(frame), &image);
+            let curves = self.extract_from(&mut WholeFrame(frame), &image, None);
             self.local_active = false;
             self.local_image = image;
             return curves;
         }
-        self.extract_from(&mut WholeFrame(frame), background.image())
+        self.extract_from(
+            &mut WholeFrame(frame),
+            background.image(),
+            Some(background.id()),
+        )
     }
 
     /// The local background of the last frame extracted against
@@ -506,13 +510,15 @@ impl Extractor {
         &self.local_image
     }
 
-    /// The curves of `src`'s frame (of the camera's size) against `background`.
+    /// The curves of `src`'s frame (of the camera's size) against `background`, whose
+    /// [`Background::id`] is `background_id` (`None` for one made for this frame).
     fn extract_from(
         &mut self,
         src: &mut dyn TileFrame,
         background: &RgbImage,
+        background_id: Option<u64>,
     ) -> Result<Vec<Curve>, ExtractError> {
-        self.activate_rgb(src.frame(), background, self.local_active);
+        self.activate_rgb(src.frame(), (background, background_id), self.local_active);
         let sampling = self.sampling.sampling(src.frame());
         let mut curves = Vec::new();
         self.stats = ExtractStats::default();

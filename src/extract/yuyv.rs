@@ -207,7 +207,7 @@ impl Extractor {
         // 3. The RGB pipeline on the scratch frame, which converts more tiles if a
         //    curve is followed beyond these. Taken out of the extractor for the call.
         self.yuyv_frame = true;
-        let out = self.extract_from(&mut src, bg);
+        let out = self.extract_from(&mut src, bg, None);
         self.yuyv_frame = false;
         if let Some(yuv) = self.yuv.as_mut() {
             yuv.scratch = src.scratch;
