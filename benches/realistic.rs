@@ -19,7 +19,8 @@
 //! the first extraction (which holds a scan's one-time work: reading the chroma
 //! sampling off the frames, growing the buffers) and for the others (a frame of a long
 //! recording; the frame stays in the caches), and a profile of a large N is the
-//! extraction's rather than the simulator's.
+//! extraction's rather than the simulator's. Then each stage's time
+//! (`Extractor::stage_times`), its mean over all extractions at 1080p.
 //! The policies: `laser-off` (the simulator's background), `local` (none given: the
 //! extractor's local background) and `black` (none given, as before the local one).
 
@@ -54,6 +55,9 @@ fn main() {
     let mut scores: Vec<Score> = policies.iter().map(|_| Score::default()).collect();
     // Per policy: the first extraction of each frame, and the mean of the others.
     let mut millis = vec![[0.0f64; 2]; policies.len()];
+    // Per policy, per stage: the extractions' times (all of them), and their count.
+    let mut stages = vec![[0.0f64; 8]; policies.len()];
+    let mut extractions = vec![0usize; policies.len()];
     let mut megapixels = 0.0;
     let (mut done, mut ran) = (0, 0);
     let mut seed = 0;
@@ -96,13 +100,17 @@ fn main() {
                 if only.as_deref().is_some_and(|p| p != policies[k]) {
                     continue;
                 }
-                let t = Instant::now();
-                let mut curves = extractor.extract(&img, bg);
-                let mut times = vec![t.elapsed().as_secs_f64() * 1e3];
-                for _ in 1..repeat {
-                    let t1 = Instant::now();
+                let mut curves = Vec::new();
+                let mut times = Vec::new();
+                for _ in 0..repeat {
+                    let t = Instant::now();
                     curves = extractor.extract(&img, bg);
-                    times.push(t1.elapsed().as_secs_f64() * 1e3);
+                    times.push(t.elapsed().as_secs_f64() * 1e3);
+                    let scale = 1920.0 * 1080.0 / f64::from(cam.width * cam.height);
+                    for (s, (_, d)) in stages[k].iter_mut().zip(extractor.stage_times().stages()) {
+                        *s += d.as_secs_f64() * 1e3 * scale;
+                    }
+                    extractions[k] += 1;
                 }
                 millis[k][0] += times[0];
                 if repeat > 1 {
@@ -220,5 +228,22 @@ fn main() {
                 "-".into()
             },
         );
+    }
+    // Where the time went: each stage's mean over all extractions, at 1080p.
+    let names = crossline::extract::StageTimes::default()
+        .stages()
+        .map(|(n, _)| n);
+    println!(
+        "ms per 1080p frame by stage, all extractions: {}",
+        names.join(" / ")
+    );
+    for (k, name) in policies.iter().enumerate() {
+        if extractions[k] > 0 {
+            let each: Vec<String> = stages[k]
+                .iter()
+                .map(|s| format!("{:.2}", s / extractions[k] as f64))
+                .collect();
+            println!("  {name}: {}", each.join(" / "));
+        }
     }
 }

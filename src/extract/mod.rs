@@ -108,6 +108,7 @@ pub mod local;
 mod response;
 pub mod rolling;
 pub mod score;
+mod timing;
 pub mod yuyv;
 
 use image::RgbImage;
@@ -121,6 +122,7 @@ pub use curves::{Curve, CurvesFile, CURVES_FILE_VERSION};
 use detect::Detector;
 use link::Linker;
 use response::{response_rgb, DarkCells};
+pub use timing::StageTimes;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ExtractError {
@@ -369,6 +371,7 @@ pub struct Extractor {
     /// No lens distortion: points skip the undistortion.
     undistorted_camera: bool,
     stats: ExtractStats,
+    times: StageTimes,
     /// The background in YUV and the scratch frame of [`Self::extract_yuyv`].
     yuv: Option<yuyv::BackgroundYuv>,
     /// Scratch of the faint-stripe activation ([`faint`]).
@@ -428,6 +431,7 @@ impl Extractor {
             detector,
             linker: Linker::default(),
             stats: ExtractStats::default(),
+            times: StageTimes::default(),
             yuv: None,
             faint: faint::FaintRidges::default(),
             dark: DarkCells::default(),
@@ -448,6 +452,11 @@ impl Extractor {
 
     pub fn stats(&self) -> ExtractStats {
         self.stats
+    }
+
+    /// Where the last frame's extraction spent its time, stage by stage.
+    pub fn stage_times(&self) -> StageTimes {
+        self.times
     }
 
     /// Takes the frames to come as their decoder rebuilt their chroma, from their bytes
@@ -490,10 +499,13 @@ impl Extractor {
         }
         if background.is_local() {
             let mut image = std::mem::take(&mut self.local_image);
+            let mut lap = timing::Lap::start();
             self.local.estimate_into(frame, &mut image);
+            let opening = lap.next();
             self.local_active = true;
             let curves = self.extract_from(&mut WholeFrame(frame), &image, None);
             self.local_active = false;
+            self.times.local = opening;
             self.local_image = image;
             return curves;
         }
@@ -518,8 +530,14 @@ impl Extractor {
         background: &RgbImage,
         background_id: Option<u64>,
     ) -> Result<Vec<Curve>, ExtractError> {
+        let mut lap = timing::Lap::start();
         self.activate_rgb(src.frame(), (background, background_id), self.local_active);
+        self.times = StageTimes {
+            activate: lap.next(),
+            ..StageTimes::default()
+        };
         let sampling = self.sampling.sampling(src.frame());
+        self.times.chroma = lap.next();
         let mut curves = Vec::new();
         self.stats = ExtractStats::default();
         self.detector.texture_kept = self.local_active;
@@ -535,37 +553,14 @@ impl Extractor {
                     self.local_active,
                 ),
             );
+            self.times.response += lap.next();
             self.detector
                 .detect(&self.active[laser], self.params.low_contrast);
+            self.times.detect += lap.next();
             let first = curves.len();
             self.link_into(laser as u8, &mut curves, false);
-            // Follow the curves out of the active tiles: a stripe fading below
-            // `min_value` (a faint tail under water) activates no tile of its own.
-            for _ in 0..MAX_FOLLOW_ROUNDS {
-                if !self.tiles_ahead(laser, &curves[first..]) {
-                    break;
-                }
-                self.stats.follow_tiles += self.grown.iter().filter(|g| **g).count();
-                src.ensure(&self.grown, self.detector.tiles_x, self.detector.tiles_y);
-                self.detector.extend(
-                    &self.grown,
-                    &mut response_rgb(
-                        &self.lut,
-                        laser as u8,
-                        src.frame(),
-                        background,
-                        &self.dark,
-                        self.local_active,
-                    ),
-                );
-                self.detector
-                    .detect_more(&self.grown, self.params.low_contrast);
-                for (a, g) in self.active[laser].iter_mut().zip(&self.grown) {
-                    *a |= *g;
-                }
-                curves.truncate(first);
-                self.link_into(laser as u8, &mut curves, false);
-            }
+            self.follow_curves(laser, src, background, &mut curves, first);
+            self.times.follow += lap.next();
             // Linked once more, the points moved off the glow under them and off the
             // chroma rebuild's pull: the rounds above only need where the curves end.
             chroma::point_moves(
@@ -577,6 +572,7 @@ impl Extractor {
             );
             curves.truncate(first);
             self.link_into(laser as u8, &mut curves, true);
+            self.times.link += lap.next();
             self.stats.round_tiles += self.detector.round_tiles;
             self.stats.active_tiles += self.active[laser].iter().filter(|a| **a).count();
             self.stats.ridge_points += self.detector.points.len();
@@ -595,7 +591,47 @@ impl Extractor {
         self.stats.clipped_points = checks::clipped_points(&self.lut, src.frame(), &curves);
         self.presence
             .observe(&self.params.lasers, &curves, self.stats.clipped_points);
+        self.times.checks = lap.next();
         Ok(curves)
+    }
+
+    /// Follows laser `laser`'s curves (from `first` in `curves`, linked for their
+    /// ends) out of the active tiles, up to [`MAX_FOLLOW_ROUNDS`] rounds while they
+    /// grow: a stripe fading below `min_value` (a faint tail under water) activates no
+    /// tile of its own.
+    fn follow_curves(
+        &mut self,
+        laser: usize,
+        src: &mut dyn TileFrame,
+        background: &RgbImage,
+        curves: &mut Vec<Curve>,
+        first: usize,
+    ) {
+        for _ in 0..MAX_FOLLOW_ROUNDS {
+            if !self.tiles_ahead(laser, &curves[first..]) {
+                break;
+            }
+            self.stats.follow_tiles += self.grown.iter().filter(|g| **g).count();
+            src.ensure(&self.grown, self.detector.tiles_x, self.detector.tiles_y);
+            self.detector.extend(
+                &self.grown,
+                &mut response_rgb(
+                    &self.lut,
+                    laser as u8,
+                    src.frame(),
+                    background,
+                    &self.dark,
+                    self.local_active,
+                ),
+            );
+            self.detector
+                .detect_more(&self.grown, self.params.low_contrast);
+            for (a, g) in self.active[laser].iter_mut().zip(&self.grown) {
+                *a |= *g;
+            }
+            curves.truncate(first);
+            self.link_into(laser as u8, curves, false);
+        }
     }
 
     /// Whether the extractor (or one sharing its warnings) has told that one of its

@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::simulate::render::normal_cdf;
+use std::time::Duration;
 
 /// xorshift64* with Box–Muller: fixed seeds, no dependency.
 struct Rng(u64);
@@ -904,3 +905,38 @@ fn curves_do_not_depend_on_stale_response() {
 
 #[path = "tests_glow.rs"]
 mod glow;
+
+/// Each stage's time is taken: with a laser-off frame every stage a stripe passes
+/// through has run and the opening has not; against the local background the opening
+/// is timed too; and the stages never add up to more than the call took.
+#[test]
+fn the_stages_are_timed() {
+    let (w, h) = (256, 192);
+    let line = |x: f64, y: f64| y - 90.0 - 0.3 * x;
+    let frame = render(
+        w,
+        h,
+        &flat(40.0),
+        &[Stripe {
+            rgb: [1.0, 0.1, 0.1],
+            peak: 120.0,
+            s: 1.2,
+            distance: &line,
+        }],
+        1.0,
+        &mut Rng(5),
+    );
+    let mut ex = auto_width_extractor(w, h, "red-green");
+    for background in [flat_background(w, h, 40.0), Background::local(w, h)] {
+        let wall = std::time::Instant::now();
+        let curves = ex.extract(&frame, &background);
+        let wall = wall.elapsed();
+        assert!(!curves.is_empty());
+        let t = ex.stage_times();
+        for (name, d) in t.stages() {
+            let ran = name != "local background" || background.is_local();
+            assert_eq!(d > Duration::ZERO, ran, "{name}: {d:?}");
+        }
+        assert!(t.total() <= wall, "{:?} against {wall:?}", t.total());
+    }
+}

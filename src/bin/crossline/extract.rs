@@ -100,6 +100,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .with_context(|| format!("extracting {}", args.input.display()))?;
     let points: usize = curves.iter().map(|c| c.points_px.len()).sum();
     let stats = extractor.stats();
+    tracing::debug!("time per stage: {:?}", extractor.stage_times());
     tracing::info!(
         "{}: {} curves, {} points ({} on a clipped channel){}",
         args.input.display(),
