@@ -26,6 +26,7 @@
 
 use std::time::Instant;
 
+use crossline::extract::chroma::Rebuild;
 use crossline::extract::score::Score;
 use crossline::extract::{Background, ExtractParams, Extractor, LaserColour};
 use crossline::simulate::random::draw_realistic;
@@ -86,6 +87,18 @@ fn main() {
         let Ok(mut extractor) = Extractor::new(&params, &cam) else {
             continue;
         };
+        // A camera's JPEG bytes say how their colour was sampled, and the pipeline
+        // tells the extractor (`capture::chroma`): frames that are one JPEG round trip
+        // are told; the others (PNG, and 4:2:0 repeated after the round trip, as
+        // FFmpeg converts a video) are read off their pixels, as there.
+        let r = &drawn.params.realism;
+        if drawn.params.jpeg_quality.is_some() && (!r.chroma_420 || r.chroma_interpolated) {
+            extractor.know_chroma(if r.chroma_420 {
+                [Rebuild::Interpolated; 2]
+            } else {
+                [Rebuild::Full; 2]
+            });
+        }
         let off = Background::from_image(sim.background());
         let local = Background::local(cam.width, cam.height);
         let black = Background::black(cam.width, cam.height);
