@@ -41,7 +41,7 @@ use super::colour::CLIP_LEVEL;
 use super::detect::LinePoint;
 
 mod model;
-use model::ShiftTable;
+use model::{Series, ShiftTable};
 
 pub use crate::capture::chroma::Rebuild;
 
@@ -304,27 +304,32 @@ impl Sampling {
             return 0.0;
         }
         let n = [nx, ny];
+        // Per axis, the point's series: its scale, width and share do not move with
+        // the phase, only the phase with the shift.
+        let series: [Option<Series>; 2] = std::array::from_fn(|axis| {
+            let table = ShiftTable::of(self.rebuild[axis])?;
+            let along = n[axis].abs();
+            if along < 0.05 {
+                return None;
+            }
+            // Along the line the detector's window (std `sigma_s`) passes phases of
+            // this axis at the rate of the normal's other component.
+            let spread = sigma_s * n[1 - axis].abs();
+            let (scale, width) = (sigma_s / along, sigma_w / along);
+            let width = table.true_width(scale, share, width);
+            table.series(scale, width, share, spread)
+        });
         let mut shift = 0.0;
         // The phase depends on the centre without the shift: two rounds of fixed point.
         for _ in 0..2 {
             let mut next = 0.0;
-            for axis in 0..2 {
-                let Some(table) = ShiftTable::of(self.rebuild[axis]) else {
+            for (axis, series) in series.iter().enumerate() {
+                let Some(series) = series else {
                     continue;
                 };
-                let along = n[axis].abs();
-                if along < 0.05 {
-                    continue;
-                }
                 let centre = [x, y][axis] - shift * n[axis];
                 let phase = (centre - f32::from(self.offset[axis])).rem_euclid(2.0);
-                // Along the line the detector's window (std `sigma_s`) passes phases of
-                // this axis at the rate of the normal's other component.
-                let spread = sigma_s * n[1 - axis].abs();
-                let (scale, width) = (sigma_s / along, sigma_w / along);
-                let width = table.true_width(scale, share, width);
-                let b = table.bias(phase, scale, width, share, spread);
-                next += n[axis] * b;
+                next += n[axis] * series.at(phase);
             }
             shift = next;
         }

@@ -159,6 +159,7 @@ impl ShiftTable {
 
     /// The shift (px, along the axis) at `phase`, interpolated in the table, with the
     /// harmonics averaged over a Gaussian spread of phases of std `spread` px.
+    #[cfg(test)]
     pub(super) fn bias(
         &self,
         phase: f32,
@@ -167,15 +168,29 @@ impl ShiftTable {
         share: f32,
         spread: f32,
     ) -> f32 {
+        self.series(sigma_s, sigma_w, share, spread)
+            .map_or(0.0, |s| s.at(phase))
+    }
+
+    /// The sine series of the shift for a point's scale, width and chroma share, its
+    /// harmonics interpolated in the table and averaged over a Gaussian spread of
+    /// phases of std `spread` px; `None` (no shift) outside the table. A point's
+    /// series is the same at every phase, so it is made once and read per phase
+    /// ([`Series::at`]).
+    pub(super) fn series(
+        &self,
+        sigma_s: f32,
+        sigma_w: f32,
+        share: f32,
+        spread: f32,
+    ) -> Option<Series> {
         let (Some((is, fs)), Some((ih, fh))) = (
             SIGMA_S.locate(sigma_s),
             SHARE.locate(share.clamp(SHARE.0, SHARE.value(SHARE.2 - 1))),
         ) else {
-            return 0.0;
+            return None;
         };
-        let Some((iw, fw)) = SIGMA_W.locate(sigma_w.max(SIGMA_W.0)) else {
-            return 0.0;
-        };
+        let (iw, fw) = SIGMA_W.locate(sigma_w.max(SIGMA_W.0))?;
         let mut a = [0f32; HARMONICS];
         for (ds, ws) in [(0, 1.0 - fs), (1, fs)] {
             for (dw, ww) in [(0, 1.0 - fw), (1, fw)] {
@@ -187,20 +202,32 @@ impl ShiftTable {
                 }
             }
         }
-        // Σ a_k q^(k²) sin(kθ): the sines by their recurrence, the damping
-        // `exp(−½ (πk spread)²) = q^(k²)` by steps of `q^(2k−1)`.
-        let pi = std::f32::consts::PI;
-        let theta = pi * (phase - 0.5);
-        let (sin1, cos2) = (theta.sin(), 2.0 * theta.cos());
-        let q = (-0.5 * (pi * spread).powi(2)).exp();
-        let (mut s_prev, mut s_k) = (0.0, sin1);
+        // The damping `exp(−½ (πk spread)²) = q^(k²)`, by steps of `q^(2k−1)`.
+        let q = (-0.5 * (std::f32::consts::PI * spread).powi(2)).exp();
         let (mut damp, mut step) = (q, q * q * q);
-        let mut sum = 0.0;
-        for a in a {
-            sum += a * damp * s_k;
-            (s_prev, s_k) = (s_k, cos2 * s_k - s_prev);
+        for a in &mut a {
+            *a *= damp;
             damp *= step;
             step *= q * q;
+        }
+        Some(Series(a))
+    }
+}
+
+/// A point's shift as a sine series of the phase, damped ([`ShiftTable::series`]).
+pub(super) struct Series([f32; HARMONICS]);
+
+impl Series {
+    /// The shift (px, along the axis) at `phase`: `Σ a_k sin(πk(φ − ½))`, the sines by
+    /// their recurrence.
+    pub(super) fn at(&self, phase: f32) -> f32 {
+        let theta = std::f32::consts::PI * (phase - 0.5);
+        let (sin1, cos2) = (theta.sin(), 2.0 * theta.cos());
+        let (mut s_prev, mut s_k) = (0.0, sin1);
+        let mut sum = 0.0;
+        for a in self.0 {
+            sum += a * s_k;
+            (s_prev, s_k) = (s_k, cos2 * s_k - s_prev);
         }
         sum
     }
