@@ -336,15 +336,27 @@ fn a_stuck_reader_does_not_stop_the_pipeline(
 }
 
 /// A TCP client (of the cloud stream or the live view) whose receive buffer is 4 KiB
-/// (loopback TCP would otherwise grow it to MiBs and take in the whole scan).
+/// (loopback TCP would otherwise grow it to MiBs and take in the whole scan). The
+/// daemon's TCP listeners may come up a moment after its status socket, which is what
+/// the caller waited for: a refused connection is tried again for up to 20 s.
 fn small_buffered_client(addr: &str) -> std::net::TcpStream {
-    let sock =
-        socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None).expect("a socket");
-    sock.set_recv_buffer_size(4096).expect("SO_RCVBUF");
     let to: std::net::SocketAddr = addr.parse().expect("an address");
-    sock.connect(&to.into())
-        .expect("connect to the cloud stream");
-    sock.into()
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    loop {
+        let sock = socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None)
+            .expect("a socket");
+        sock.set_recv_buffer_size(4096).expect("SO_RCVBUF");
+        match sock.connect(&to.into()) {
+            Ok(()) => return sock.into(),
+            Err(e)
+                if e.kind() == std::io::ErrorKind::ConnectionRefused
+                    && std::time::Instant::now() < deadline =>
+            {
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            Err(e) => panic!("connect to the cloud stream at {addr}: {e}"),
+        }
+    }
 }
 
 #[test]
