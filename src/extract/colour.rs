@@ -328,7 +328,8 @@ impl ColourLut {
     /// (the shoulders of an overexposed stripe, which the sensor's crosstalk washes out
     /// to a pale tint): there the difference is read as everywhere else. Where such a
     /// surface's excess fades into the noise, at its edges, the noise lends it a hue
-    /// and a pixel cannot tell it from a faint stripe: short pieces can remain there.
+    /// and a pixel cannot tell it from a faint stripe; the own channel of the difference
+    /// has no ridge there, and `super::valley` drops those points.
     #[inline]
     pub fn response_off(&self, laser: u8, d: [u8; 3], raw: &[u8]) -> (u8, bool) {
         let class = self.classify(d[0], d[1], d[2]);

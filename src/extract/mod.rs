@@ -35,7 +35,10 @@
 //!    edge of a wide glow band also reads as a ridge, with the glow on one flank.
 //!    Under water the sheet's glow fills one side of its stripe up to the centre line
 //!    and tilts the ridge towards it (0.1–0.3 px); each point keeps what
-//!    [`detect::step_shift`] needs to take that off.
+//!    [`detect::step_shift`] needs to take that off. Against a given background, a
+//!    point that is a valley of the background rather than a ridge of the frame (an
+//!    object that has moved away since), or no ridge of the laser's own channel in the
+//!    difference, is not used ([`valley`]).
 //! 3. *Linking* with hysteresis (`low_contrast` to continue, `high_contrast` to start,
 //!    or `faint_start_contrast` for a curve at least `faint_min_length_px` long),
 //!    gaps of up to 3 px jumped along the line, fragments with less than
@@ -109,6 +112,7 @@ mod response;
 pub mod rolling;
 pub mod score;
 mod timing;
+mod valley;
 pub mod yuyv;
 
 use image::RgbImage;
@@ -355,6 +359,10 @@ pub struct ExtractStats {
     /// there is a pattern or a flat-topped patch, not a stripe (without a laser-off
     /// frame: texture in the laser's hue).
     pub round_tiles: usize,
+    /// Ridge points, summed over the lasers, not used because they are a valley of the
+    /// given background rather than a ridge of the frame: something that lay there when
+    /// the background was taken has moved away since ([`valley`]).
+    pub moved_points: usize,
 }
 
 /// The per-frame extractor; owns and reuses all its scratch buffers.
@@ -556,6 +564,7 @@ impl Extractor {
             self.times.response += lap.next();
             self.detector
                 .detect(&self.active[laser], self.params.low_contrast);
+            self.veto_valleys(laser, src.frame(), background, 0);
             self.times.detect += lap.next();
             let first = curves.len();
             self.link_into(laser as u8, &mut curves, false);
@@ -624,14 +633,32 @@ impl Extractor {
                     self.local_active,
                 ),
             );
+            let from = self.detector.points.len();
             self.detector
                 .detect_more(&self.grown, self.params.low_contrast);
+            self.veto_valleys(laser, src.frame(), background, from);
             for (a, g) in self.active[laser].iter_mut().zip(&self.grown) {
                 *a |= *g;
             }
             curves.truncate(first);
             self.link_into(laser as u8, curves, false);
         }
+    }
+
+    /// Against a given background, takes laser `laser`'s ridge points from `from` on
+    /// out of the linking where they are a valley of the background rather than a
+    /// ridge of the frame: something moved away since ([`valley`]).
+    fn veto_valleys(&mut self, laser: usize, frame: &RgbImage, background: &RgbImage, from: usize) {
+        if self.local_active {
+            return;
+        }
+        self.stats.moved_points += valley::veto_background_valleys(
+            &mut self.detector.points[from..],
+            (frame, background),
+            &self.lut,
+            laser as u8,
+            self.params.lasers[laser].channels(),
+        );
     }
 
     /// Whether the extractor (or one sharing its warnings) has told that one of its

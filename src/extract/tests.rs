@@ -361,11 +361,12 @@ fn white_core_with_a_coloured_fringe_is_found() {
 /// A dark strand that lay across a dim grey-green wall in the laser-off frame and has
 /// moved away since: the wall shows through brighter than the background, grey in the
 /// frame and in the difference. Read as laser light, it gave curves along its length
-/// at the full excess (62 points); now only its noisy edges beside the stripe's tiles
-/// give short pieces (18), where the noise lends the faint excess a hue. The green
-/// stripe across it is found.
+/// at the full excess (62 points). The colour test took that out, but left short
+/// pieces along its noisy edges (18 points), where the noise lends the faint excess a
+/// hue; those are not ridges of the laser's own channel in the difference, and
+/// [`valley`] drops them. The green stripe across it is found.
 #[test]
-fn a_strand_that_moved_since_the_laser_off_frame_leaves_only_its_noisy_edges() {
+fn a_strand_that_moved_since_the_laser_off_frame_gives_no_curve() {
     let (w, h) = (96u32, 96u32);
     let wall = [46.0, 48.0, 44.0];
     let strand_x = |y: f64| 30.0 + 0.2 * y;
@@ -398,7 +399,7 @@ fn a_strand_that_moved_since_the_laser_off_frame_leaves_only_its_noisy_edges() {
         .count();
     assert!(on_stripe >= 70, "{on_stripe} points on the stripe");
     assert!(
-        on_strand * 4 <= on_stripe,
+        on_strand <= 2,
         "{on_strand} points where the strand was, {on_stripe} on the stripe"
     );
     assert!(
