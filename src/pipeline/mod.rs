@@ -408,7 +408,10 @@ pub fn reconstruct_scan(
     let calibration = calibration.as_ref();
     let fit = calibration.and_then(|c| Fit::of(c, predicted_px));
     let refused = calibration.and_then(|_| refusal(&out.stats, fit));
-    let warnings = doubts(calibration, &out, config.triangulate.max_depth_sigma);
+    let mut warnings = doubts(calibration, &out, config.triangulate.max_depth_sigma);
+    if refused.is_none() && calibration.is_some() {
+        warnings.extend(refusal::doubts(&out.stats));
+    }
     for w in &warnings {
         tracing::warn!("{w}");
     }
