@@ -101,10 +101,11 @@ const DOUBT_INCONSISTENT_SHARE: f64 = 0.15;
 
 /// Why planes that pass [`refusal`] are still in doubt, in words: more of the points
 /// left out for disagreeing at crossings than right planes lose. A wrong basin between
-/// that and the refusal: generality seed 104 at 100 frames, 43 % of the points
+/// that and the refusal: generality seed 104 at 100 frames, before a crossing behind
+/// the camera counted against a solution (docs/method.md), 43 % of the points
 /// disagreeing and every kept point on a plane over 2 % off, where the same frames
-/// started from the true planes lose 0.2 % (at 300 frames it is solved, 0.7 %). Its fit
-/// does not tell: 5.8 times the extraction's precision, and 5.5 from the true planes.
+/// started from the true planes lose 0.2 % (at 300 frames, 0.7 %). Its fit did not
+/// tell: 5.8 times the extraction's precision, and 5.5 from the true planes.
 pub(crate) fn doubts(stats: &cloud::TriangulateStats) -> Option<String> {
     let judged = stats.kept + stats.inconsistent_points;
     let share = stats.inconsistent_points as f64 / judged.max(1) as f64;
