@@ -657,7 +657,6 @@ impl Extractor {
             (frame, background),
             &self.lut,
             laser as u8,
-            self.params.lasers[laser].channels(),
         );
     }
 

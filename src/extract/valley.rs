@@ -83,22 +83,20 @@ fn across(image: &RgbImage, channels: [bool; 3], p: &LinePoint) -> [f32; 3] {
     [mean(0.0), mean(-p.flank_px), mean(p.flank_px)]
 }
 
-/// Sets the strength of each point of `points` (laser `laser`, whose own channels are
-/// `channels`) to zero where its ridge is mostly a valley of `background` rather than a
+/// Sets the strength of each point of `points` (laser `laser`, its own channels as in
+/// `lut`) to zero where its ridge is mostly a valley of `background` rather than a
 /// ridge of `frame`; returns how many were.
 pub(crate) fn veto_background_valleys(
     points: &mut [LinePoint],
     (frame, background): (&RgbImage, &RgbImage),
     lut: &ColourLut,
     laser: u8,
-    channels: [bool; 3],
 ) -> usize {
-    let (w, h) = (frame.width() as usize, frame.height() as usize);
+    let channels = lut.channels()[usize::from(laser)];
     let raw = frame.as_raw();
     let mut vetoed = 0;
     for p in points.iter_mut().filter(|p| p.strength > 0.0) {
-        let (x, y) = (p.pixel as usize % w, p.pixel as usize / w);
-        if x >= w || y >= h || lut.own_clipped(laser, &raw[3 * (y * w + x)..]) {
+        if lut.own_clipped(laser, &raw[3 * p.pixel as usize..]) {
             continue;
         }
         let [fc, f0, f1] = across(frame, channels, p);
