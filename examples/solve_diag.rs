@@ -250,6 +250,7 @@ fn main() -> anyhow::Result<()> {
                 min_sample_spread: 4.0 * sol.sigma_img,
                 max_depth_sigma: f64::INFINITY,
                 min_sin_angle: config.solve.min_sin_angle,
+                parallel: false,
             };
             let known: Vec<(usize, Vector3<f64>)> = crossings
                 .iter()

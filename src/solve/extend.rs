@@ -44,6 +44,10 @@ pub struct FitContext {
     /// ([`super::SolveParams::min_sin_angle`]): their position along the curves is
     /// poorly fixed.
     pub min_sin_angle: f64,
+    /// Whether a consensus start may weigh its draws on two threads (where the caller
+    /// spares the cores: [`super::SolveParams::dense_threads`] above one). The answer
+    /// does not depend on it.
+    pub parallel: bool,
 }
 
 #[cfg(test)]
@@ -62,6 +66,7 @@ impl FitContext {
             min_sample_spread: 0.0,
             max_depth_sigma: f64::INFINITY,
             min_sin_angle: 0.1,
+            parallel: false,
         }
     }
 }
@@ -207,6 +212,16 @@ pub fn fit_plane(
 /// partner, of pairs).
 const CONSENSUS_TRIALS: usize = 64;
 
+/// Crossings a consensus candidate meets between looks at whether it can still win
+/// ([`Consensus::vote`]): long enough for the loop to run without a branch, short next
+/// to a curve's hundreds of crossings.
+const CONSENSUS_CHUNK: usize = 32;
+
+/// Draws times crossings below which a consensus runs on one thread even where the
+/// cores are spared ([`FitContext::parallel`]): about 10 µs of work, where a join
+/// costs a few µs.
+const PARALLEL_CONSENSUS_WORK: usize = 4096;
+
 /// The plane of a minimal sample, rows `r · v = d` (unit `r` up to scale), if its
 /// smallest singular value over unit rows is at least `min_sv`.
 fn sample_plane(rows: [(Vector3<f64>, f64); 3], min_sv: f64) -> Option<Vector3<f64>> {
@@ -320,60 +335,139 @@ fn consensus_start(
     partner: Option<Vector3<f64>>,
     ctx: &FitContext,
 ) -> Option<Vector3<f64>> {
-    let d = Vector3::new(ctx.focal_scale, ctx.focal_scale, 1.0);
     let m = known.len();
     if m < 4 {
         return None;
     }
-    let thr = ctx.outlier_k * ctx.sigma_img;
-    let min_sv = ctx.min_sample_spread;
-    let row = |i: usize| {
-        let c = &crossings[known[i].0];
-        let u = Vector3::new(c.u[0], c.u[1], 1.0);
-        (u, known[i].1.dot(&u))
-    };
-    let mut candidates: Vec<Vector3<f64>> = samples::<3>(m)
-        .into_iter()
-        .filter_map(|t| sample_plane([row(t[0]), row(t[1]), row(t[2])], min_sv))
-        .collect();
-    if let Some(vp) = partner {
-        let ortho = (vp.component_mul(&d).component_mul(&d), 0.0);
-        candidates.extend(
-            samples::<2>(m)
-                .into_iter()
-                .filter_map(|t| sample_plane([row(t[0]), row(t[1]), ortho], min_sv)),
-        );
+    // The rows gathered once, side by side: every candidate meets every one.
+    let rows: Vec<([f64; 2], Vector3<f64>)> =
+        known.iter().map(|(k, vj)| (crossings[*k].u, *vj)).collect();
+    let mut draws: Vec<Draw> = samples::<3>(m).into_iter().map(Draw::Triple).collect();
+    if partner.is_some() {
+        draws.extend(samples::<2>(m).into_iter().map(Draw::Pair));
     }
-    // Every candidate meets every known crossing: the squared residual spares a square
-    // root per pair.
-    let thr2 = thr * thr;
-    let mut best: Option<(usize, f64, Vector3<f64>)> = None;
-    for v in candidates {
-        let (mut count, mut cost) = (0usize, 0.0);
-        for (k, vj) in known {
-            let e2 = sampson_squared(&v, vj, crossings[*k].u);
-            if e2 <= thr2 {
-                count += 1;
+    let consensus = Consensus {
+        rows: &rows,
+        partner,
+        ctx,
+        d: Vector3::new(ctx.focal_scale, ctx.focal_scale, 1.0),
+        thr2: (ctx.outlier_k * ctx.sigma_img).powi(2),
+    };
+    // The two halves of the draws side by side where the caller spares the cores; the
+    // winner is the one the draws give in sequence ([`Vote::beats`]).
+    let best = if ctx.parallel && draws.len() * m >= PARALLEL_CONSENSUS_WORK {
+        let (a, b) = draws.split_at(draws.len() / 2);
+        let (a, b) = rayon::join(|| consensus.best_of(a), || consensus.best_of(b));
+        match (a, b) {
+            (Some(a), Some(b)) if b.beats(&a) => Some(b),
+            (a, b) => a.or(b),
+        }
+    } else {
+        consensus.best_of(&draws)
+    };
+    best.filter(|b| b.count >= 3).map(|b| b.plane)
+}
+
+/// A minimal sample of [`consensus_start`]: three crossings, or two and the partner's
+/// orthogonality.
+#[derive(Clone, Copy)]
+enum Draw {
+    Triple([usize; 3]),
+    Pair([usize; 2]),
+}
+
+/// What [`consensus_start`] weighs its candidates against.
+struct Consensus<'a> {
+    rows: &'a [([f64; 2], Vector3<f64>)],
+    partner: Option<Vector3<f64>>,
+    ctx: &'a FitContext,
+    /// `diag(λ, λ, 1)` as a vector.
+    d: Vector3<f64>,
+    /// The squared inlier threshold, `(k σ_img)²`.
+    thr2: f64,
+}
+
+/// A candidate's votes: crossings (and the partner) within the threshold, and the
+/// truncated squared error that breaks ties.
+#[derive(Clone, Copy)]
+struct Vote {
+    count: usize,
+    cost: f64,
+    plane: Vector3<f64>,
+}
+
+impl Vote {
+    /// Whether this vote, drawn later, wins over `earlier`: more votes, or as many at a
+    /// smaller cost (the first of equals stays).
+    fn beats(&self, earlier: &Vote) -> bool {
+        self.count > earlier.count || (self.count == earlier.count && self.cost < earlier.cost)
+    }
+}
+
+impl Consensus<'_> {
+    /// The plane of a draw, if it is well conditioned.
+    fn plane(&self, draw: Draw) -> Option<Vector3<f64>> {
+        let row = |i: usize| {
+            let (u, vj) = &self.rows[i];
+            let u = Vector3::new(u[0], u[1], 1.0);
+            (u, vj.dot(&u))
+        };
+        let min_sv = self.ctx.min_sample_spread;
+        match draw {
+            Draw::Triple(t) => sample_plane([row(t[0]), row(t[1]), row(t[2])], min_sv),
+            Draw::Pair(t) => {
+                let vp = self.partner?;
+                let ortho = (vp.component_mul(&self.d).component_mul(&self.d), 0.0);
+                sample_plane([row(t[0]), row(t[1]), ortho], min_sv)
             }
-            cost += e2.min(thr2);
+        }
+    }
+
+    /// The winning vote of `draws` in order, as if each met every crossing.
+    fn best_of(&self, draws: &[Draw]) -> Option<Vote> {
+        let mut best: Option<Vote> = None;
+        for &draw in draws {
+            let Some(plane) = self.plane(draw) else {
+                continue;
+            };
+            if let Some(vote) = self.vote(plane, best.as_ref().map_or(0, |b| b.count)) {
+                if best.as_ref().is_none_or(|b| vote.beats(b)) {
+                    best = Some(vote);
+                }
+            }
+        }
+        best
+    }
+
+    /// The votes for `plane`, or `None` once it cannot reach `to_beat` votes even if
+    /// every one left agreed (then it cannot win, and most of a long curve's samples
+    /// stop after a few chunks).
+    fn vote(&self, plane: Vector3<f64>, to_beat: usize) -> Option<Vote> {
+        let (mut count, mut cost) = (0usize, 0.0);
+        let mut left = self.rows.len() + usize::from(self.partner.is_some());
+        for chunk in self.rows.chunks(CONSENSUS_CHUNK) {
+            // The squared residual spares a square root per pair.
+            for (u, vj) in chunk {
+                let e2 = sampson_squared(&plane, vj, *u);
+                count += usize::from(e2 <= self.thr2);
+                cost += e2.min(self.thr2);
+            }
+            left -= chunk.len();
+            if count + left < to_beat {
+                return None;
+            }
         }
         // The partner's orthogonality votes too: crossings all but one on a line fit
         // a wrong plane through that one as well as the right one.
-        if let Some(vp) = partner {
-            let (n, np) = (v.component_mul(&d), vp.component_mul(&d));
+        if let Some(vp) = self.partner {
+            let (n, np) = (plane.component_mul(&self.d), vp.component_mul(&self.d));
             let cos = n.dot(&np) / (n.norm() * np.norm());
-            if cos.abs() <= ctx.outlier_k * ctx.sigma_ortho {
+            if cos.abs() <= self.ctx.outlier_k * self.ctx.sigma_ortho {
                 count += 1;
             }
         }
-        if best
-            .as_ref()
-            .is_none_or(|b| count > b.0 || (count == b.0 && cost < b.1))
-        {
-            best = Some((count, cost, v));
-        }
+        Some(Vote { count, cost, plane })
     }
-    best.filter(|b| b.0 >= 3).map(|b| b.2)
 }
 
 #[cfg(test)]
@@ -494,6 +588,68 @@ mod tests {
         );
         // Without the partner the plane is free: no fit.
         assert!(fit_plane(&crossings, &known, None, &ctx, None).is_none());
+    }
+
+    /// The pruned consensus, on one thread and on two, chooses the plane that meeting
+    /// every crossing with every draw in order chooses, on a curve with a fifth of its
+    /// crossings wrong.
+    #[test]
+    fn the_consensus_chooses_as_if_every_draw_met_every_crossing() {
+        let mut rng = crate::rng::SplitMix64::new(5);
+        let truth = Vector3::new(0.3, -0.2, 1.1);
+        let partner = Vector3::new(0.9, 0.4, 0.1);
+        let sigma = 1e-3;
+        let (mut crossings, mut known) = (Vec::new(), Vec::new());
+        for k in 0..200 {
+            let d = Vector3::new(
+                rng.next_f64() - 0.5,
+                0.5 + rng.next_f64(),
+                rng.next_f64() - 0.5,
+            );
+            let x = rng.next_f64() - 0.5;
+            let wrong = if k % 5 == 0 { 50.0 * sigma } else { 0.0 };
+            let y = -(d.x * x + d.z) / d.y + sigma * (rng.next_f64() - 0.5) + wrong;
+            crossings.push(Crossing {
+                a: 0,
+                b: k + 1,
+                u: [x, y],
+                sin_angle: 1.0,
+            });
+            known.push((k as usize, truth - d));
+        }
+        let ctx = FitContext::for_tests(sigma, 1e-3);
+        let rows: Vec<([f64; 2], Vector3<f64>)> =
+            known.iter().map(|(k, vj)| (crossings[*k].u, *vj)).collect();
+        let consensus = Consensus {
+            rows: &rows,
+            partner: Some(partner),
+            ctx: &ctx,
+            d: Vector3::new(1.0, 1.0, 1.0),
+            thr2: (ctx.outlier_k * sigma).powi(2),
+        };
+        let draws = samples::<3>(rows.len())
+            .into_iter()
+            .map(Draw::Triple)
+            .chain(samples::<2>(rows.len()).into_iter().map(Draw::Pair));
+        let mut reference: Option<Vote> = None;
+        for draw in draws {
+            let Some(vote) = consensus.plane(draw).and_then(|v| consensus.vote(v, 0)) else {
+                continue;
+            };
+            if reference.as_ref().is_none_or(|b| vote.beats(b)) {
+                reference = Some(vote);
+            }
+        }
+        let reference = reference.expect("a vote").plane;
+        assert!(
+            (reference - truth).norm() < 0.05 * truth.norm(),
+            "{reference}"
+        );
+        for parallel in [false, true] {
+            let ctx = FitContext { parallel, ..ctx };
+            let found = consensus_start(&crossings, &known, Some(partner), &ctx);
+            assert_eq!(found, Some(reference), "parallel {parallel}");
+        }
     }
 
     /// The fit's depth uncertainty scales with the crossings' noise, and grows from the

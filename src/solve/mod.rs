@@ -772,6 +772,7 @@ pub fn solve(problem: &Problem, params: &SolveParams) -> Result<Solution, SolveE
             f64::INFINITY
         },
         min_sin_angle: params.min_sin_angle,
+        parallel: params.dense_threads.0 > 1,
     };
     let (rc, rv, uncertain_planes) = extend_and_refine(
         problem,

@@ -168,6 +168,7 @@ fn solve_and_grow(
         // Only the global solve's own extension judges uncertainty.
         max_depth_sigma: f64::INFINITY,
         min_sin_angle: params.min_sin_angle,
+        parallel: params.dense_threads.0 > 1,
     };
     let mut failed = vec![false; problem.num_curves];
     // Crossings of each curve with the planes solved so far, kept as planes are added
