@@ -18,6 +18,7 @@
 //!   its pose.
 
 use nalgebra::Vector3;
+use rayon::prelude::*;
 use serde::Serialize;
 
 use super::choose::{best_of_preferring, least_cost, score};
@@ -691,60 +692,80 @@ pub(super) fn refine_starts(
     sigma_px: f64,
     eparams: &EstimateParams,
 ) -> Result<Vec<Estimate>, SolveError> {
-    let mut estimates: Vec<Estimate> = Vec::new();
-    // The first estimate's cost under its own spreads, once it exists.
-    let mut first_cost = None;
-    for w in shift_candidates(sub, planes) {
+    let poses_at = |w: &V3| {
         let shifted: Vec<Option<V3>> = planes.iter().map(|p| p.map(|v| v + w)).collect();
-        let Some((poses, _)) = init::poses_from_planes(sub, &shifted) else {
-            continue;
-        };
-        let (spreads, params_here) = match estimates.first() {
-            None => (init::start_spreads(sub, &poses, sigma_px), eparams.clone()),
-            Some(first) => (
-                first.spreads,
-                EstimateParams {
-                    variance_rounds: 1,
-                    ..eparams.clone()
-                },
-            ),
-        };
+        init::poses_from_planes(sub, &shifted).map(|(poses, _)| poses)
+    };
+    let shifts = shift_candidates(sub, planes);
+    // The first shift that gives poses is refined under spreads of its own, and its
+    // failure is the answer's.
+    let Some((at, poses)) = shifts
+        .iter()
+        .enumerate()
+        .find_map(|(i, w)| Some((i, poses_at(w)?)))
+    else {
+        return Ok(Vec::new());
+    };
+    let start = Start {
+        spreads: init::start_spreads(sub, &poses, sigma_px),
+        poses,
+        focal_scale: lambda,
+    };
+    let mut first = estimate::estimate(sub, &start, eparams)?;
+    normalise_scale(sub, &mut first);
+    let base = score(sub, &first, eparams);
+    tracing::debug!(
+        lambda,
+        found = first.focal_scale,
+        cost = base,
+        "the first start"
+    );
+    // Every later shift under the first's spreads, each on its own: where the caller
+    // spares the cores they run side by side (the twin that the screen keeps refined
+    // alone on the dive's final solve, one core idle), in order either way.
+    let further = |w: &V3| -> Option<Estimate> {
         let start = Start {
-            poses,
+            poses: poses_at(w)?,
             focal_scale: lambda,
-            spreads,
+            spreads: first.spreads,
         };
-        match estimate::estimate(sub, &start, &params_here) {
-            Ok(mut est) => {
-                normalise_scale(sub, &mut est);
-                if let (Some(_), Some(base)) = (estimates.first(), first_cost) {
-                    let delta = score(sub, &est, eparams) - base;
-                    tracing::debug!(lambda, found = est.focal_scale, delta, "a further start");
-                    if delta < AMBIGUOUS_CHI2 {
-                        // It competes: measure its own spreads too.
-                        let again = Start {
-                            poses: est.poses.clone(),
-                            focal_scale: est.focal_scale,
-                            spreads: est.spreads,
-                        };
-                        if let Ok(mut full) = estimate::estimate(sub, &again, eparams) {
-                            normalise_scale(sub, &mut full);
-                            est = full;
-                        }
-                    }
-                }
-                if first_cost.is_none() {
-                    let cost = score(sub, &est, eparams);
-                    tracing::debug!(lambda, found = est.focal_scale, cost, "the first start");
-                    first_cost = Some(cost);
-                }
-                estimates.push(est);
+        let once = EstimateParams {
+            variance_rounds: 1,
+            ..eparams.clone()
+        };
+        let mut est = match estimate::estimate(sub, &start, &once) {
+            Ok(est) => est,
+            Err(e) => {
+                tracing::debug!("an alternative start did not refine: {e}");
+                return None;
             }
-            Err(e) if estimates.is_empty() => return Err(e),
-            Err(e) => tracing::debug!("an alternative start did not refine: {e}"),
+        };
+        normalise_scale(sub, &mut est);
+        let delta = score(sub, &est, eparams) - base;
+        tracing::debug!(lambda, found = est.focal_scale, delta, "a further start");
+        if delta < AMBIGUOUS_CHI2 {
+            // It competes: measure its own spreads too.
+            let again = Start {
+                poses: est.poses.clone(),
+                focal_scale: est.focal_scale,
+                spreads: est.spreads,
+            };
+            if let Ok(mut full) = estimate::estimate(sub, &again, eparams) {
+                normalise_scale(sub, &mut full);
+                est = full;
+            }
         }
-    }
-    Ok(estimates)
+        Some(est)
+    };
+    let rest = &shifts[at + 1..];
+    let found: Vec<Option<Estimate>> = if eparams.threads.0 > 1 {
+        rest.par_iter().map(further).collect()
+    } else {
+        rest.iter().map(further).collect()
+    };
+    Ok(std::iter::once(first)
+        .chain(found.into_iter().flatten())
+        .collect())
 }
 
 /// The shifts `w` to refine: every minimum of the orthogonality cost of the crosses whose

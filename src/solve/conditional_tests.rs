@@ -134,3 +134,30 @@ fn a_cancelled_completion_fits_no_pose() {
     assert_eq!(fits(false), outside);
     assert_eq!(fits(true), 0);
 }
+
+/// Where the caller spares the cores, the solve runs its pieces, a consensus start's
+/// draws and a start's further shifts side by side; the answer is the one of one
+/// thread, to the bit.
+#[test]
+fn two_threads_give_the_answer_of_one() {
+    let scan = path_scan(&PathSpec {
+        frames: 90,
+        ..PathSpec::default()
+    });
+    let ev = evidence_of(&scan, 0.1, 3, |_, _| true);
+    let one = calibrate(&ev, &SolveParams::default()).expect("one thread");
+    let two = calibrate(
+        &ev,
+        &SolveParams {
+            dense_threads: super::dense::DenseThreads(2),
+            ..SolveParams::default()
+        },
+    )
+    .expect("two threads");
+    let planes =
+        |cal: &Calibration| -> Vec<_> { (0..ev.planes.len()).map(|i| cal.plane(i)).collect() };
+    assert_eq!(planes(&one), planes(&two));
+    assert!(planes(&one).iter().flatten().count() > ev.planes.len() / 2);
+    assert_eq!(one.verdicts, two.verdicts);
+    assert_eq!(one.estimate.poses, two.estimate.poses);
+}
