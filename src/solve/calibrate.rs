@@ -252,9 +252,10 @@ fn linear_start_at(
             &active,
             &mut given,
             &fixed,
-            &ctx,
+            (&ctx, &params.cancel),
             0,
         );
+        params.cancel.check()?;
     }
     let lambda = start.focal_scale;
     let planes = given
@@ -337,6 +338,13 @@ fn calibrate_with(
             )));
         }
     }
+    // The linear start looks at the cancellation too: a superseded epoch in its
+    // extension (seconds of one core at thousands of planes) held a core the final
+    // solve wanted.
+    let params = &SolveParams {
+        cancel: cancel.clone(),
+        ..params.clone()
+    };
     // The anchors are estimated jointly (everything below up to `best_of`), the other
     // poses fitted against them after.
     let split = AnchorSplit::of(evidence);

@@ -67,6 +67,7 @@ pub fn robust_global(
     };
     let k_out = params.outlier_mad_k;
     for _outer in 0..30 {
+        params.cancel.check()?;
         let n = subset.curves.len();
         if n < 4 {
             return Err(SolveError::TooFewPlanes {

@@ -119,7 +119,8 @@ pub enum SolveError {
 }
 
 /// A request to stop a solve early, shared between the solve and its caller. The solve
-/// looks at it between estimator steps and between starts, and then returns
+/// looks at it between estimator steps, between starts, and in the linear start
+/// between robust rounds and plane fits ([`SolveParams::cancel`]), and then returns
 /// [`SolveError::Cancelled`]: the daemon's final solve must not share the CPU with an
 /// epoch it supersedes.
 #[derive(Clone, Debug, Default)]
@@ -216,6 +217,11 @@ pub struct SolveParams {
     /// extraction workers and keep one). The answer does not depend on it.
     #[serde(skip)]
     pub dense_threads: dense::DenseThreads,
+    /// Stops the linear start ([`solve`]) between its robust rounds and its plane fits:
+    /// set by the caller (a live epoch's, which the final solve supersedes), never by the
+    /// configuration.
+    #[serde(skip)]
+    pub cancel: Cancel,
 }
 
 impl Default for SolveParams {
@@ -237,6 +243,7 @@ impl Default for SolveParams {
             min_crossing_strength: 15.0,
             uncertain_plane_ratio: 4.0,
             dense_threads: dense::DenseThreads::default(),
+            cancel: Cancel::default(),
         }
     }
 }
@@ -392,13 +399,14 @@ pub(crate) fn median(mut x: Vec<f64>) -> Option<f64> {
 /// from crossings with solved curves, then `refine_rounds` Gauss–Seidel rounds over
 /// the curves not in `fixed`; then the refined planes that their crossings fix too
 /// loosely (`ctx.max_depth_sigma` times the median) are dropped again. Returns the crossings and curves
-/// rejected on the way, and the number of planes dropped as too uncertain.
+/// rejected on the way, and the number of planes dropped as too uncertain; once
+/// `cancel` is set it fits no more planes, and its answer is none.
 pub fn extend_and_refine(
     problem: &Problem,
     active: &[bool],
     planes: &mut [Option<Vector3<f64>>],
     fixed: &[bool],
-    ctx: &FitContext,
+    (ctx, cancel): (&FitContext, &Cancel),
     refine_rounds: usize,
 ) -> (Vec<usize>, Vec<u32>, usize) {
     let cr = problem.crossings;
@@ -430,6 +438,9 @@ pub fn extend_and_refine(
         order.sort_unstable_by(|a, b| b.cmp(a));
         let mut progress = false;
         for (_, c) in order {
+            if cancel.is_cancelled() {
+                break;
+            }
             let known = gather(c, planes);
             let partner = partner_plane(c, planes);
             if known.len() < ctx.min_crossings && partner.is_none() {
@@ -457,7 +468,7 @@ pub fn extend_and_refine(
     let mut dropped_uncertain = 0;
     for round in 0..refine_rounds {
         for c in 0..problem.num_curves {
-            if fixed[c] || planes[c].is_none() {
+            if fixed[c] || planes[c].is_none() || cancel.is_cancelled() {
                 continue;
             }
             let known = gather(c, planes);
@@ -702,6 +713,7 @@ pub fn solve(problem: &Problem, params: &SolveParams) -> Result<Solution, SolveE
         .collect();
     let shallow_crossings = active.iter().filter(|&&a| !a).count();
 
+    params.cancel.check()?;
     let started = std::time::Instant::now();
     let global = robust_global(problem, &active, params)?;
     let subset = &global.subset;
@@ -774,14 +786,17 @@ pub fn solve(problem: &Problem, params: &SolveParams) -> Result<Solution, SolveE
         min_sin_angle: params.min_sin_angle,
         parallel: params.dense_threads.0 > 1,
     };
+    params.cancel.check()?;
     let (rc, rv, uncertain_planes) = extend_and_refine(
         problem,
         &ext_active,
         &mut planes,
         &fixed,
-        &ctx,
+        (&ctx, &params.cancel),
         params.refine_rounds,
     );
+    // Cut short when cancelled: what it gave is no answer.
+    params.cancel.check()?;
     rejected_crossings.extend(rc);
     rejected_crossings.sort_unstable();
     rejected_crossings.dedup();

@@ -227,6 +227,21 @@ fn a_disconnected_smaller_group_is_left_out() {
     assert!(worst < 1e-9);
 }
 
+/// A linear start whose caller has cancelled it (a live epoch the final solve
+/// supersedes) stops with `Cancelled`, where the same problem solves.
+#[test]
+fn a_cancelled_linear_start_stops() {
+    let (s, cr) = scan(12, 21);
+    let problem = problem(&s, &cr);
+    assert!(solve(&problem, &SolveParams::default()).is_ok());
+    let params = SolveParams::default();
+    params.cancel.cancel();
+    assert!(matches!(
+        solve(&problem, &params),
+        Err(SolveError::Cancelled)
+    ));
+}
+
 #[test]
 fn too_little_data_is_an_error_not_a_panic() {
     let (s, cr) = scan(2, 36);
