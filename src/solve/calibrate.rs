@@ -558,6 +558,7 @@ fn two_starts(
     };
     let (refined, [first, second]) = super::pieces::run(&pieces);
     let mut estimates = Vec::new();
+    let linear_failed = linear_error.is_some();
     let mut failure = linear_error;
     match refined {
         Some(Ok(found)) => estimates.extend(found),
@@ -567,6 +568,19 @@ fn two_starts(
     estimates.extend(first);
     estimates.extend(second);
     match (estimates.is_empty(), failure) {
+        // Neither start found anything: both say why, with what there was (the linear
+        // start's own words alone asked whether the lasers were seen, of a scan with
+        // a thousand curves).
+        (true, Some(e)) if centre.is_none() && linear_failed => Err(SolveError::NoStart {
+            planes: evidence.planes.len(),
+            crossings: evidence.crossings.len(),
+            strong: evidence
+                .crossings
+                .iter()
+                .filter(|c| c.class == CrossingClass::Strong)
+                .count(),
+            linear: Box::new(e),
+        }),
         (true, Some(e)) => Err(e),
         (true, None) => Err(SolveError::Degenerate("no start for the joint estimate")),
         (false, _) => Ok((start, planes, estimates)),

@@ -161,3 +161,37 @@ fn two_threads_give_the_answer_of_one() {
     assert_eq!(one.verdicts, two.verdicts);
     assert_eq!(one.estimate.poses, two.estimate.poses);
 }
+
+/// Where neither start finds anything (three frames: too few planes for the global
+/// subset, and no centre whose crosses come out orthogonal), the error says so of both,
+/// with the counts of planes and crossings there were, not only the linear start's
+/// question whether the lasers were seen.
+#[test]
+fn without_any_start_the_error_names_both_and_what_there_was() {
+    let scan = path_scan(&PathSpec {
+        frames: 3,
+        ..PathSpec::default()
+    });
+    let ev = evidence_of(&scan, 0.1, 3, |_, _| true);
+    let err = calibrate(&ev, &SolveParams::default()).expect_err("no start");
+    let super::SolveError::NoStart {
+        planes,
+        crossings,
+        linear,
+        ..
+    } = &err
+    else {
+        panic!("another error: {err}");
+    };
+    assert_eq!((*planes, *crossings), (ev.planes.len(), ev.crossings.len()));
+    assert!(
+        matches!(**linear, super::SolveError::TooFewPlanes { .. }),
+        "{linear}"
+    );
+    let message = err.to_string();
+    assert!(
+        message.contains(&format!("{} planes", ev.planes.len())),
+        "{message}"
+    );
+    assert!(message.contains("fixed-centre start"), "{message}");
+}

@@ -110,6 +110,20 @@ pub enum SolveError {
          such as red far under water, or lost in its sheet's glow, leaves too few)"
     )]
     TooFewCrosses { found: usize, needed: usize },
+    #[error(
+        "no start for the self-calibration of {planes} planes with {crossings} crossings \
+         ({strong} strong enough for the linear start): the linear start: {linear}; the \
+         fixed-centre start: no centre of the hand gives planes whose crosses come out \
+         orthogonal. The planes may be fixed by the crossings, but nothing here finds \
+         them: a longer sweep with more crossings between frames, or brighter stripes, \
+         gives the starts more to stand on"
+    )]
+    NoStart {
+        planes: usize,
+        crossings: usize,
+        strong: usize,
+        linear: Box<SolveError>,
+    },
     #[error("degenerate system: {0}")]
     Degenerate(&'static str),
     /// The caller asked the solve to stop ([`Cancel`]): a live epoch superseded by the
