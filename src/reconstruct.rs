@@ -482,6 +482,10 @@ pub fn reconstruct_files(
             with_extraction(&mut report);
             Err(PipelineError::Refused { reason, report }.into())
         }
+        Err(PipelineError::Unsolved { error, mut report }) => {
+            with_extraction(&mut report);
+            Err(PipelineError::Unsolved { error, report }.into())
+        }
         Err(e) => Err(e.into()),
     }
 }

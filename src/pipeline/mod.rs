@@ -87,6 +87,14 @@ pub enum PipelineError {
         reason: String,
         report: Box<ReconstructReport>,
     },
+    /// The self-calibration found no planes: no cloud. The report says what the
+    /// extraction and the crossings found, and why (`unsolved`).
+    #[error("solving the planes")]
+    Unsolved {
+        #[source]
+        error: solve::SolveError,
+        report: Box<ReconstructReport>,
+    },
 }
 
 /// Whether no point of `curve` reaches `min_strength` (curves read without strengths
@@ -354,20 +362,25 @@ pub fn reconstruct_scan(
             })
             .collect()
     };
-    let calibration = match source {
-        PlaneSource::SelfCalibrated => Some(solve::calibrate(&evidence, &solve_params)?),
-        PlaneSource::StartedFrom(known) => Some(solve::calibrate_from(
-            &evidence,
-            &solve_params,
-            Some(&start_of(known)),
-        )?),
-        PlaneSource::AlsoFrom(earlier) => Some(solve::calibrate_until(
+    let calibrated = match source {
+        PlaneSource::SelfCalibrated => solve::calibrate(&evidence, &solve_params).map(Some),
+        PlaneSource::StartedFrom(known) => {
+            solve::calibrate_from(&evidence, &solve_params, Some(&start_of(known))).map(Some)
+        }
+        PlaneSource::AlsoFrom(earlier) => solve::calibrate_until(
             &evidence,
             &solve_params,
             Some(&start_of(earlier)),
             &solve::Cancel::default(),
-        )?),
-        PlaneSource::Known(_) => None,
+        )
+        .map(Some),
+        PlaneSource::Known(_) => Ok(None),
+    };
+    // A failed self-calibration still reports what the extraction and the crossings
+    // found: the cloud is empty, and the report says why.
+    let (calibration, unsolved) = match calibrated {
+        Ok(calibration) => (calibration, None),
+        Err(e) => (None, Some(e)),
     };
     let planes = match (&calibration, source) {
         (_, PlaneSource::Known(known)) => Planes::Known(
@@ -402,7 +415,10 @@ pub fn reconstruct_scan(
         colour_source,
         config,
     );
-    let factor = cloud::scale_for(scale, &out.cloud, &out.pixels)?;
+    let factor = match unsolved {
+        Some(_) => 1.0,
+        None => cloud::scale_for(scale, &out.cloud, &out.pixels)?,
+    };
     cloud::apply_scale(&mut out.cloud, factor);
     times.triangulate_s = t.elapsed().as_secs_f64();
     let calibration = calibration.as_ref();
@@ -433,6 +449,14 @@ pub fn reconstruct_scan(
         fitted_px = calibration.map(|c| c.summary.spreads.map(|s| s.crossing_px[0])),
         "strong crossings: the extraction's predicted precision and the planes' fit"
     );
+    if let Some(error) = unsolved {
+        rec.report.points = 0;
+        rec.report.unsolved = Some(error.to_string());
+        return Err(PipelineError::Unsolved {
+            error,
+            report: Box::new(rec.report),
+        });
+    }
     if let Some(reason) = refused {
         rec.report.points = 0;
         rec.report.refused = Some(reason.clone());

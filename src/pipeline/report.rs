@@ -22,6 +22,7 @@
 //! | `warnings` | why the result is doubtful, as logged (empty when nothing is) |
 //! | `crossing_precision_px` | the extraction's predicted precision of the strong crossings (pixels; median of each refined crossing's deviation from its two local fits), or `null` |
 //! | `refused` | why no cloud was written although the planes were solved (the crossing check failed; `points` is then 0), or `null` |
+//! | `unsolved` | why no plane was solved (the self-calibration failed: `points` is 0, and the counts above are what the extraction and the crossings found), or `null`; added 2026-12-07 |
 
 use nalgebra::Vector3;
 use serde::Serialize;
@@ -76,6 +77,7 @@ pub struct ReconstructReport {
     pub seconds: StageTimes,
     pub warnings: Vec<String>,
     pub refused: Option<String>,
+    pub unsolved: Option<String>,
     /// The precision the extraction predicts for the strong crossings (pixels, median):
     /// what the planes' fit (`calibration.spreads.crossing_px[0]`) is judged against.
     pub crossing_precision_px: Option<f64>,
@@ -134,6 +136,7 @@ pub(crate) fn assemble(
         seconds,
         warnings: Vec::new(),
         refused: None,
+        unsolved: None,
         crossing_precision_px: None,
     };
     Reconstruction {

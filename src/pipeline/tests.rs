@@ -349,3 +349,29 @@ fn crossings_for_the_check_are_made_on_the_refined_crossings() {
         }
     }
 }
+
+/// Three frames give the self-calibration nothing to start from: no cloud, and the
+/// error carries the report of what was found (curves, planes, crossings) and why
+/// nothing was solved, with no point in it.
+#[test]
+fn a_scan_that_calibrates_nothing_still_reports_what_it_found() {
+    let camera = camera();
+    let (_, mut frames) = frames_of(&camera);
+    frames.truncate(3);
+    let result = reconstruct_curves(
+        frames,
+        &camera,
+        &Config::default(),
+        PlaneSource::SelfCalibrated,
+        &ScaleMode::Factor { factor: 1.0 },
+        None,
+    );
+    let Err(PipelineError::Unsolved { error, report }) = result else {
+        panic!("expected no planes solved");
+    };
+    assert_eq!((report.frames, report.curves, report.planes), (3, 6, 6));
+    assert!(report.crossings > 0);
+    assert_eq!(report.points, 0);
+    assert_eq!(report.unsolved, Some(error.to_string()));
+    assert!(report.refused.is_none());
+}

@@ -466,7 +466,14 @@ fn cold_then_warm<T>(
     warm: Option<impl FnOnce() -> Result<T, PipelineError>>,
 ) -> Result<T, PipelineError> {
     match (cold(), warm) {
-        (Err(e @ (PipelineError::Refused { .. } | PipelineError::Solve(_))), Some(warm)) => {
+        (
+            Err(
+                e @ (PipelineError::Refused { .. }
+                | PipelineError::Unsolved { .. }
+                | PipelineError::Solve(_)),
+            ),
+            Some(warm),
+        ) => {
             tracing::info!(
                 "the final solve gave no cloud ({e}); solving again with the last epoch's planes as one more start"
             );

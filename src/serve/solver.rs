@@ -156,7 +156,8 @@ impl Live<'_> {
                 // A refused cloud still has the report of what the solve found.
                 let report = match e {
                     crate::reconstruct::ReconstructError::Pipeline(
-                        crate::pipeline::PipelineError::Refused { report, .. },
+                        crate::pipeline::PipelineError::Refused { report, .. }
+                        | crate::pipeline::PipelineError::Unsolved { report, .. },
                     ) => Some(*report),
                     _ => None,
                 };

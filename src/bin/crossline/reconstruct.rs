@@ -136,6 +136,14 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             }
             bail!("{reason}");
         }
+        Err(e @ ReconstructError::Pipeline(PipelineError::Unsolved { .. })) => {
+            if let ReconstructError::Pipeline(PipelineError::Unsolved { report, .. }) = &e {
+                if let Some(path) = &args.report {
+                    write_report(report, path)?;
+                }
+            }
+            return Err(e.into());
+        }
         Err(e) => return Err(e.into()),
     };
     let meta = scan_meta(&args.input, &args.camera, &camera, &rec);
