@@ -33,6 +33,8 @@
 use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
+use rayon::prelude::*;
+
 /// Version written in the `comment crossline ply N` header line.
 pub const PLY_VERSION: u32 = 1;
 
@@ -637,6 +639,11 @@ pub fn write_ply_atomic(path: &Path, cloud: &Cloud, comments: &[String]) -> Resu
     })
 }
 
+/// Points encoded at a time by [`write_ply`], and blocks encoded side by side before
+/// they are written (at most about 25 MB held at once).
+const WRITE_BLOCK: usize = 1 << 15;
+const WRITE_BATCH: usize = 32;
+
 /// Writes `cloud` as binary little-endian PLY; `comments` become header comment lines.
 pub fn write_ply(path: &Path, cloud: &Cloud, comments: &[String]) -> Result<(), PlyError> {
     let io = |source| PlyError::Io {
@@ -687,28 +694,40 @@ pub fn write_ply(path: &Path, cloud: &Cloud, comments: &[String]) -> Result<(), 
     }
     header.push_str("end_header\n");
     w.write_all(header.as_bytes()).map_err(io)?;
-    let mut rec = Vec::with_capacity(32);
-    for i in 0..n {
-        rec.clear();
-        for c in cloud.points[i] {
-            rec.extend_from_slice(&c.to_le_bytes());
+    // The records are encoded a block of points at a time, the blocks of a batch side
+    // by side, and written in order: the same bytes as one point at a time, which took
+    // 0.5 s of the 9 M-point dive's final cloud on one core after its solve.
+    let encode = |from: usize| -> Vec<u8> {
+        let to = (from + WRITE_BLOCK).min(n);
+        let mut rec = Vec::with_capacity((to - from) * 32);
+        for i in from..to {
+            for c in cloud.points[i] {
+                rec.extend_from_slice(&c.to_le_bytes());
+            }
+            if let Some(colors) = &cloud.colors {
+                rec.extend_from_slice(&colors[i]);
+            }
+            if let Some(frames) = &cloud.frames {
+                rec.extend_from_slice(&frames[i].to_le_bytes());
+            }
+            if let Some(lasers) = &cloud.lasers {
+                rec.push(lasers[i]);
+            }
+            if let Some(d) = &cloud.distances {
+                rec.extend_from_slice(&d[i].to_le_bytes());
+            }
+            if let Some(d) = &cloud.depth_sigmas {
+                rec.extend_from_slice(&d[i].to_le_bytes());
+            }
         }
-        if let Some(colors) = &cloud.colors {
-            rec.extend_from_slice(&colors[i]);
+        rec
+    };
+    let starts: Vec<usize> = (0..n).step_by(WRITE_BLOCK).collect();
+    for batch in starts.chunks(WRITE_BATCH) {
+        let blocks: Vec<Vec<u8>> = batch.par_iter().map(|&from| encode(from)).collect();
+        for block in &blocks {
+            w.write_all(block).map_err(io)?;
         }
-        if let Some(frames) = &cloud.frames {
-            rec.extend_from_slice(&frames[i].to_le_bytes());
-        }
-        if let Some(lasers) = &cloud.lasers {
-            rec.push(lasers[i]);
-        }
-        if let Some(d) = &cloud.distances {
-            rec.extend_from_slice(&d[i].to_le_bytes());
-        }
-        if let Some(d) = &cloud.depth_sigmas {
-            rec.extend_from_slice(&d[i].to_le_bytes());
-        }
-        w.write_all(&rec).map_err(io)?;
     }
     w.flush().map_err(io)?;
     Ok(())
@@ -760,6 +779,25 @@ mod tests {
         };
         write_ply(&path, &bare, &[]).expect("write");
         assert_eq!(read_ply(&path).expect("read"), bare);
+    }
+
+    /// A cloud of several blocks and batches of [`write_ply`]'s encoding, the last
+    /// ones short, comes back point for point in order.
+    #[test]
+    fn a_cloud_of_many_blocks_round_trips_in_order() {
+        let n = WRITE_BLOCK * (WRITE_BATCH + 3) + 17;
+        let cloud = Cloud {
+            points: (0..n).map(|i| [i as f32, -(i as f32), 0.5]).collect(),
+            colors: Some((0..n).map(|i| [i as u8, (i >> 8) as u8, 3]).collect()),
+            frames: Some((0..n as u32).collect()),
+            lasers: Some((0..n).map(|i| (i % 2) as u8).collect()),
+            distances: None,
+            depth_sigmas: Some((0..n).map(|i| i as f32 * 1e-6).collect()),
+        };
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("many.ply");
+        write_ply(&path, &cloud, &[]).expect("write");
+        assert_eq!(read_ply(&path).expect("read"), cloud);
     }
 
     #[test]
