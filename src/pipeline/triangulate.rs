@@ -245,6 +245,23 @@ pub(crate) fn cloud(
         planes: plane_of,
         planes_with_points: 0,
     };
+    // Room for every point at once: extended part by part, the 9 M points of the dive
+    // were copied again at every doubling.
+    let total: usize = parts.iter().map(|p| p.0.points.len()).sum();
+    out.cloud.points.reserve_exact(total);
+    out.pixels.reserve_exact(total);
+    if let Some(v) = out.cloud.frames.as_mut() {
+        v.reserve_exact(total);
+    }
+    if let Some(v) = out.cloud.colors.as_mut() {
+        v.reserve_exact(total);
+    }
+    if let Some(v) = out.cloud.lasers.as_mut() {
+        v.reserve_exact(total);
+    }
+    if let Some(v) = out.cloud.depth_sigmas.as_mut() {
+        v.reserve_exact(total);
+    }
     for (part, pixels, stats, undetermined) in parts {
         out.planes_with_points += usize::from(!part.points.is_empty());
         out.cloud.points.extend(part.points);
