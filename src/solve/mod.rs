@@ -42,6 +42,7 @@ pub mod calibrate;
 pub mod centre;
 pub mod choose;
 pub mod conditional;
+mod consensus;
 pub mod dense;
 pub mod estimate;
 pub mod evidence;
