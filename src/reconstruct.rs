@@ -27,7 +27,6 @@ mod streamed;
 
 pub use extraction::{extract_frames, Extracted};
 
-use crate::pipeline::PipelineError;
 pub use crate::pipeline::{
     reconstruct_curves, reconstruct_scan, PlaneSource, ReconstructReport, Reconstruction, Scan,
     StageTimes, REPORT_VERSION,
@@ -478,15 +477,12 @@ pub fn reconstruct_files(
             with_extraction(&mut rec.report);
             Ok(rec)
         }
-        Err(PipelineError::Refused { reason, mut report }) => {
-            with_extraction(&mut report);
-            Err(PipelineError::Refused { reason, report }.into())
+        Err(mut e) => {
+            if let Some(report) = e.report_mut() {
+                with_extraction(report);
+            }
+            Err(e.into())
         }
-        Err(PipelineError::Unsolved { error, mut report }) => {
-            with_extraction(&mut report);
-            Err(PipelineError::Unsolved { error, report }.into())
-        }
-        Err(e) => Err(e.into()),
     }
 }
 

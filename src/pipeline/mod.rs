@@ -97,6 +97,25 @@ pub enum PipelineError {
     },
 }
 
+impl PipelineError {
+    /// The report of what was found, where the error carries one (no cloud: the planes
+    /// refused, or none solved).
+    pub fn report_mut(&mut self) -> Option<&mut ReconstructReport> {
+        match self {
+            Self::Refused { report, .. } | Self::Unsolved { report, .. } => Some(report),
+            Self::Solve(_) | Self::Scale(_) => None,
+        }
+    }
+
+    /// [`Self::report_mut`], taken.
+    pub fn into_report(self) -> Option<ReconstructReport> {
+        match self {
+            Self::Refused { report, .. } | Self::Unsolved { report, .. } => Some(*report),
+            Self::Solve(_) | Self::Scale(_) => None,
+        }
+    }
+}
+
 /// Whether no point of `curve` reaches `min_strength` (curves read without strengths
 /// count as strong).
 pub(crate) fn is_faint(curve: &Curve, min_strength: f32) -> bool {

@@ -153,12 +153,9 @@ impl Live<'_> {
             Err(e) => {
                 let msg = anyhow_like(&e);
                 tracing::warn!("final solve: {msg}; writing an empty cloud");
-                // A refused cloud still has the report of what the solve found.
+                // A refused or unsolved cloud still has the report of what was found.
                 let report = match e {
-                    crate::reconstruct::ReconstructError::Pipeline(
-                        crate::pipeline::PipelineError::Refused { report, .. }
-                        | crate::pipeline::PipelineError::Unsolved { report, .. },
-                    ) => Some(*report),
+                    crate::reconstruct::ReconstructError::Pipeline(p) => p.into_report(),
                     _ => None,
                 };
                 (

@@ -136,15 +136,15 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             }
             bail!("{reason}");
         }
-        Err(e @ ReconstructError::Pipeline(PipelineError::Unsolved { .. })) => {
-            if let ReconstructError::Pipeline(PipelineError::Unsolved { report, .. }) = &e {
-                if let Some(path) = &args.report {
+        // No planes solved: the error, and the report of what was found.
+        Err(mut e) => {
+            if let (ReconstructError::Pipeline(p), Some(path)) = (&mut e, &args.report) {
+                if let Some(report) = p.report_mut() {
                     write_report(report, path)?;
                 }
             }
             return Err(e.into());
         }
-        Err(e) => return Err(e.into()),
     };
     let meta = scan_meta(&args.input, &args.camera, &camera, &rec);
     write_outputs_with(&rec, &args.out, args.report.as_deref(), &meta)?;
