@@ -118,8 +118,7 @@ impl Calibration {
         if self.verdicts.get(i) != Some(&PlaneVerdict::Determined) {
             return None;
         }
-        let slot = self.evidence.planes.get(i)?;
-        self.estimate.poses[slot.pose as usize].plane(usize::from(slot.laser))
+        self.evidence.planes.get(i)?.plane_in(&self.estimate.poses)
     }
 
     /// The ray of the undistorted normalised point `u` (camera file coordinates) at the
@@ -867,8 +866,7 @@ pub(super) fn median_inverse_depth(
         .enumerate()
         .filter(|(k, _)| counts(*k))
         .filter_map(|(_, c)| {
-            let slot = evidence.planes[c.a as usize];
-            let v = poses[slot.pose as usize].plane(usize::from(slot.laser))?;
+            let v = evidence.planes[c.a as usize].plane_in(poses)?;
             let ray = evidence.rays.ray(c.u, lambda)?;
             Some(v.dot(&ray.r))
         })

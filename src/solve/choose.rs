@@ -223,7 +223,7 @@ fn depth_difference(evidence: &Evidence, a: &Estimate, b: &Estimate) -> f64 {
         .filter_map(|c| {
             let slot = evidence.planes[c.a as usize];
             let depth = |e: &Estimate| {
-                let v = e.poses[slot.pose as usize].plane(usize::from(slot.laser))?;
+                let v = slot.plane_in(&e.poses)?;
                 let ray = evidence.rays.ray(c.u, e.focal_scale)?;
                 Some(v.dot(&ray.r))
             };

@@ -315,9 +315,8 @@ impl<'a> Layout<'a> {
             return false;
         };
         [c.a, c.b].into_iter().all(|p| {
-            let slot = ev.planes[p as usize];
-            state.poses[slot.pose as usize]
-                .plane(usize::from(slot.laser))
+            ev.planes[p as usize]
+                .plane_in(&state.poses)
                 .is_some_and(|v| v.dot(&ray.r) > 0.0)
         })
     }

@@ -46,6 +46,14 @@ pub struct PlaneSlot {
     pub laser: u8,
 }
 
+impl PlaneSlot {
+    /// This plane as `poses` (indexed by pose) give it; `None` for a plane through the
+    /// camera centre ([`super::pose::CrossPose::plane`]).
+    pub fn plane_in(self, poses: &[super::pose::CrossPose]) -> Option<Vector3<f64>> {
+        poses[self.pose as usize].plane(usize::from(self.laser))
+    }
+}
+
 /// The rays of image points at a focal scale `λ` (see the module docs).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct RayModel {
