@@ -520,7 +520,10 @@ fn two_starts(
         // Nothing for the null space to stand on (a table top, a standing hand in a
         // plain room): the centre start alone.
         Err(e @ (SolveError::TooFewPlanes { .. } | SolveError::TooFewCrosses { .. })) => {
-            tracing::info!("the linear start found nothing to stand on ({e})");
+            // Not a failure of the scan: the centre start is the way on, and when it
+            // finds nothing either, `SolveError::NoStart` says both. At INFO, live
+            // epochs early in a scan printed the error's advice as if the scan failed.
+            tracing::debug!("the linear start found nothing to stand on, the fixed-centre start goes on alone ({e})");
             (
                 super::Solution::empty(),
                 vec![None; sub.planes.len()],
