@@ -103,10 +103,9 @@ fn worst_depth_error(ev: &Evidence, scan: &PathScan, poses: &[CrossPose]) -> f64
         .iter()
         .flat_map(|c| [c.a, c.b].map(|p| (p, c.u)))
         .map(|(p, u)| {
-            let slot = ev.planes[p as usize];
             let r = V3::new(u[0], u[1], 1.0);
-            let est = poses[slot.pose as usize]
-                .plane(usize::from(slot.laser))
+            let est = ev.planes[p as usize]
+                .plane_in(poses)
                 .expect("plane")
                 .dot(&r);
             (est, truth[p as usize].dot(&r))
@@ -200,10 +199,9 @@ fn the_motion_term_recovers_a_drifting_centre() {
             .crossings
             .iter()
             .map(|c| {
-                let slot = ev.planes[c.a as usize];
                 let r = V3::new(c.u[0], c.u[1], 1.0);
-                let v = with.poses[slot.pose as usize]
-                    .plane(usize::from(slot.laser))
+                let v = ev.planes[c.a as usize]
+                    .plane_in(&with.poses)
                     .expect("plane");
                 planes[c.a as usize].dot(&r) / v.dot(&r)
             })
@@ -499,9 +497,7 @@ fn of_two_w_solutions_the_one_behind_the_camera_loses() {
     assert!(!alt.ambiguous, "{alt:?}");
     assert!(alt.median_depth_difference > 0.01, "{alt:?}");
     for (slot, t) in ev.planes.iter().zip(&truth) {
-        let v = best.poses[slot.pose as usize]
-            .plane(usize::from(slot.laser))
-            .expect("a plane");
+        let v = slot.plane_in(&best.poses).expect("a plane");
         assert!((v - t).norm() < 1e-6 * t.norm(), "{v:?} against {t:?}");
     }
 }
