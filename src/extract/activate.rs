@@ -18,10 +18,20 @@ const FOLLOW_DIRECTION_POINTS: usize = 8;
 /// (unlike a laser-off frame) leaves in the excess, has the surface's colour.
 #[inline]
 fn purer_than_surface(d: [u8; 3], surface: &[u8]) -> bool {
-    let (_, s_excess) = colour::hue_saturation(d[0] as f32, d[1] as f32, d[2] as f32);
-    let (_, s_surface) =
-        colour::hue_saturation(surface[0] as f32, surface[1] as f32, surface[2] as f32);
-    s_excess >= 0.5 * (1.0 + s_surface)
+    // HSV saturation is (max − min) / max (0 for black); in integers, exactly:
+    // (d_max − d_min) / d_max ≥ (1 + s_num / s_den) / 2.
+    let spread = |p: [u8; 3]| {
+        let (max, min) = (p[0].max(p[1]).max(p[2]), p[0].min(p[1]).min(p[2]));
+        (u32::from(max), u32::from(max - min))
+    };
+    let (d_max, d_chroma) = spread(d);
+    let (s_max, s_chroma) = spread([surface[0], surface[1], surface[2]]);
+    let (s_num, s_den) = if s_max == 0 {
+        (0, 1)
+    } else {
+        (s_chroma, s_max)
+    };
+    d_max > 0 && 2 * d_chroma * s_den >= d_max * (s_den + s_num)
 }
 
 impl Extractor {
@@ -115,17 +125,27 @@ impl Extractor {
                     );
                     if let Some(c) = self.lut.classify(dr, dg, db) {
                         if c < n_lasers {
-                            if !local || purer_than_surface([dr, dg, db], b) {
-                                self.active[c as usize][t] = true;
+                            let a = &mut self.active[c as usize][t];
+                            if !*a && (!local || purer_than_surface([dr, dg, db], b)) {
+                                *a = true;
                             }
                         } else if c == colour::Class::White as u8 {
                             self.white[t] = true;
                         } else {
                             // A hue of no laser: a laser's stripe under a dim veil
-                            // of another colour ([`ColourLut::response`]).
+                            // of another colour ([`ColourLut::response`]). Over a
+                            // local background the veil is in the background, and
+                            // what is left must be purer than the surface, as above:
+                            // a surface's own texture in a hue between the lasers'
+                            // (a purple checker under a blue laser) activated most
+                            // of a frame's tiles, for no point.
                             for k in 0..n_lasers {
-                                if self.lut.response(k, dr, dg, db).0 >= min_value {
-                                    self.active[k as usize][t] = true;
+                                let a = &mut self.active[k as usize][t];
+                                if !*a
+                                    && self.lut.response(k, dr, dg, db).0 >= min_value
+                                    && (!local || purer_than_surface([dr, dg, db], b))
+                                {
+                                    *a = true;
                                 }
                             }
                         }

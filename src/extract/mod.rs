@@ -800,6 +800,8 @@ impl TileFrame for WholeFrame<'_> {
 #[cfg(test)]
 mod tests;
 #[cfg(test)]
+mod tests_activate;
+#[cfg(test)]
 mod tests_chroma;
 #[cfg(test)]
 mod tests_real;
