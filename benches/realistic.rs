@@ -22,7 +22,10 @@
 //! extraction's rather than the simulator's. Then each stage's time
 //! (`Extractor::stage_times`), its mean over all extractions at 1080p.
 //! The policies: `laser-off` (the simulator's background), `local` (none given: the
-//! extractor's local background) and `black` (none given, as before the local one).
+//! extractor's local background), `black` (none given, as before the local one) and
+//! `clean` (the simulator's background without sensor noise or JPEG: the frame's own
+//! ambient light exactly, which no camera gives; the floor any background, measured
+//! or estimated, can reach on these frames).
 
 use std::time::Instant;
 
@@ -48,7 +51,7 @@ fn main() {
     let scans = env_usize("REALISTIC_SCANS", 12);
     let repeat = env_usize("REALISTIC_REPEAT", 2).max(1);
     let frames = env_usize("REALISTIC_FRAMES", 3);
-    let policies = ["laser-off", "local", "black"];
+    let policies = ["laser-off", "local", "black", "clean"];
     let only = std::env::var("REALISTIC_POLICY").ok();
     let seeds: Option<Vec<u64>> = std::env::var("REALISTIC_SEEDS")
         .ok()
@@ -102,6 +105,16 @@ fn main() {
         let off = Background::from_image(sim.background());
         let local = Background::local(cam.width, cam.height);
         let black = Background::black(cam.width, cam.height);
+        // The floor: the same view with the lasers off, noise-free and uncompressed.
+        let clean = {
+            let mut p = drawn.params.clone();
+            p.noise_sigma = 0.0;
+            p.jpeg_quality = None;
+            match Simulator::new(&drawn.spec, &p) {
+                Ok(s) => Background::from_image(s.background()),
+                Err(_) => continue,
+            }
+        };
         let min_contrast = (5.0 * drawn.params.noise_sigma).round() as u8;
         for f in 0..frames {
             let index = 5 + f * 13;
@@ -109,7 +122,7 @@ fn main() {
             let mut lit = vec![0u8; (cam.width * cam.height) as usize];
             sim.render_frame_into(index, &mut img, Some(&mut lit));
             megapixels += (cam.width * cam.height) as f64 / 1e6;
-            for (k, bg) in [&off, &local, &black].into_iter().enumerate() {
+            for (k, bg) in [&off, &local, &black, &clean].into_iter().enumerate() {
                 if only.as_deref().is_some_and(|p| p != policies[k]) {
                     continue;
                 }
