@@ -15,13 +15,17 @@ use image::RgbImage;
 /// The background (a laser-off frame) is subtracted first; without one, each frame is
 /// measured against its own local background (a robust estimate wider than the
 /// stripe), and a ridge counts by the part of its light that has the laser's colour
-/// (white and grey texture counts for nothing).
+/// (white and grey texture counts for nothing). One frame cannot tell a stripe from a
+/// thin thing of the laser's own colour (a blue box's rim under a blue laser): give a
+/// laser-off frame where the view has such things.
 #[derive(clap::Args)]
 pub struct Args {
     /// The frame (PNG or JPEG).
     #[arg(long)]
     input: PathBuf,
-    /// A laser-off frame of the same view.
+    /// A laser-off frame of the same view. Without it, the frame's own local
+    /// background: on the simulator's realistic frames, 1.9 % of the points were false
+    /// (things of a laser's own colour) against 0.2 % with one.
     #[arg(long)]
     background: Option<PathBuf>,
     /// Camera calibration; without it, an undistorted 60° camera of the frame's size.
