@@ -23,9 +23,9 @@
 //! (`Extractor::stage_times`), its mean over all extractions at 1080p.
 //! The policies: `laser-off` (the simulator's background), `local` (none given: the
 //! extractor's local background), `black` (none given, as before the local one) and
-//! `clean` (the simulator's background without sensor noise or JPEG: the frame's own
-//! ambient light exactly, which no camera gives; the floor any background, measured
-//! or estimated, can reach on these frames).
+//! `clean` (the simulator's laser-off view without sensor noise or JPEG, which no
+//! camera gives: what a background measured with the lasers off could give at best; as
+//! stale as the laser-off frame where the scene changed after it).
 
 use std::time::Instant;
 
@@ -105,7 +105,7 @@ fn main() {
         let off = Background::from_image(sim.background());
         let local = Background::local(cam.width, cam.height);
         let black = Background::black(cam.width, cam.height);
-        // The floor: the same view with the lasers off, noise-free and uncompressed.
+        // The laser-off view, noise-free and uncompressed.
         let clean = {
             let mut p = drawn.params.clone();
             p.noise_sigma = 0.0;
