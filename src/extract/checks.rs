@@ -2,9 +2,7 @@
 //! the laser's own channel is clipped (and the advice when it is large), a curve of one
 //! laser that only repeats another laser's (one overexposed laser seen as two), a curve
 //! that runs along an edge of the scene (a chroma fringe, without a laser-off frame),
-//! a curve along which a channel no laser uses is darker than beside it (a thing of the
-//! laser's colour, not light), and whether both lasers of a two-laser setting are in
-//! the frames at all.
+//! and whether both lasers of a two-laser setting are in the frames at all.
 //!
 //! Owns the counters across frames and the one-time warnings; changes no point.
 
@@ -165,109 +163,6 @@ pub(crate) fn drop_edge_fringes(curves: &mut Vec<Curve>, frame: &RgbImage) -> us
     let before: usize = curves.iter().map(|c| c.points_px.len()).sum();
     curves.retain(|c| !along_edge(c));
     before - curves.iter().map(|c| c.points_px.len()).sum::<usize>()
-}
-
-/// Half the distance (px) across a curve at which [`drop_darkening`] compares a channel
-/// no laser uses with its two sides: past a stripe's core, inside its halo.
-const DARKENING_HALF_SPAN_PX: f32 = 3.0;
-
-/// Standard errors by which the median darkening of a curve must fall below zero for
-/// [`drop_darkening`] to drop it: a curve of light sits there by chance about once in
-/// a thousand.
-const DARKENING_SE: f32 = 3.0;
-
-/// Drops the curves along which the channels no laser uses (`neutral`; red under a
-/// blue-green cross) are darker in `frame` than beside them; returns how many points
-/// were dropped.
-///
-/// Light only adds: a laser's stripe raises its own channel, and the others by the
-/// sensor's crosstalk and the chroma of 4:2:0 and 4:2:2, and lowers none. A thin thing
-/// of the laser's colour on a surface of another (a blue box's rim on a brown table, a
-/// blue patch against a red wall) is a ridge of the laser's channel and a valley of the
-/// others. Per point, the neutral channels at the point minus their mean
-/// [`DARKENING_HALF_SPAN_PX`] to either side along its normal; a curve
-/// goes when the median of that over its points lies more than [`DARKENING_SE`]
-/// standard errors below zero, the error taken from the points' own spread (the
-/// median absolute deviation), so that the texture and noise of the surface under it
-/// set the bar. Points where a neutral channel clips are left out.
-///
-/// Measured on the frame itself, for a frame without a laser-off frame: the local
-/// background is an opening, which keeps a narrow valley as it is, so the excess over
-/// it shows none. Against a laser-off frame, the excess of something that changed since
-/// (an object moved away) can be darker under a real stripe; `super::valley` sees to
-/// those.
-pub(crate) fn drop_darkening(
-    curves: &mut Vec<Curve>,
-    frame: &RgbImage,
-    neutral: [bool; 3],
-) -> usize {
-    let channels: Vec<usize> = (0..3).filter(|&k| neutral[k]).collect();
-    if channels.is_empty() {
-        return 0;
-    }
-    let (w, h) = (frame.width() as f32, frame.height() as f32);
-    // The neutral channels at (x, y), bilinear, summed; none outside the frame or where
-    // one clips.
-    let neutral_at = |x: f32, y: f32| {
-        let inside = x >= 0.0 && y >= 0.0 && x.floor() + 1.0 < w && y.floor() + 1.0 < h;
-        if !inside {
-            return None;
-        }
-        let f = crate::sample::rgb_f32(frame, x, y);
-        let clipped = channels
-            .iter()
-            .any(|&k| f[k] >= f32::from(super::colour::CLIP_LEVEL));
-        (!clipped).then(|| channels.iter().map(|&k| f[k]).sum::<f32>())
-    };
-    let mut ridge = Vec::new();
-    let mut darkens = |c: &Curve| {
-        let n = c.points_px.len();
-        ridge.clear();
-        for i in 0..n {
-            let (a, b) = (
-                c.points_px[i.saturating_sub(2)],
-                c.points_px[(i + 2).min(n - 1)],
-            );
-            let (tx, ty) = (b[0] - a[0], b[1] - a[1]);
-            let len = tx.hypot(ty);
-            if len <= 0.0 {
-                continue;
-            }
-            let p = c.points_px[i];
-            let (nx, ny) = (
-                -ty / len * DARKENING_HALF_SPAN_PX,
-                tx / len * DARKENING_HALF_SPAN_PX,
-            );
-            if let (Some(m), Some(u), Some(v)) = (
-                neutral_at(p[0], p[1]),
-                neutral_at(p[0] + nx, p[1] + ny),
-                neutral_at(p[0] - nx, p[1] - ny),
-            ) {
-                ridge.push(m - 0.5 * (u + v));
-            }
-        }
-        // Too few points for a spread: kept.
-        if ridge.len() < 5 {
-            return false;
-        }
-        let median = median_of(&mut ridge);
-        for r in ridge.iter_mut() {
-            *r = (*r - median).abs();
-        }
-        let mad = median_of(&mut ridge);
-        // The median's standard error for a normal spread: 1.2533 σ / √n, σ = 1.4826 MAD.
-        let se = 1.2533 * 1.4826 * mad / (ridge.len() as f32).sqrt();
-        median < -DARKENING_SE * se
-    };
-    let before: usize = curves.iter().map(|c| c.points_px.len()).sum();
-    curves.retain(|c| !darkens(c));
-    before - curves.iter().map(|c| c.points_px.len()).sum::<usize>()
-}
-
-/// The median of `v` (reordered; not empty).
-fn median_of(v: &mut [f32]) -> f32 {
-    let mid = v.len() / 2;
-    *v.select_nth_unstable_by(mid, f32::total_cmp).1
 }
 
 /// Counters across frames for the one-time warnings. Clones share them: every

@@ -197,11 +197,6 @@ impl ColourLut {
         }
     }
 
-    /// The channels no laser's light is in (red under a blue-green cross).
-    pub fn neutral(&self) -> [bool; 3] {
-        std::array::from_fn(|k| self.channels.iter().all(|c| !c[k]))
-    }
-
     /// Per laser, the channels its light is in ([`LaserColour::channels`]).
     pub fn channels(&self) -> &[[bool; 3]] {
         &self.channels

@@ -355,10 +355,6 @@ pub struct ExtractStats {
     /// Points of curves dropped as running along an edge of the scene (without a
     /// laser-off frame: chroma fringes).
     pub fringe_points: usize,
-    /// Points of curves dropped as darker than beside them in a channel no laser uses
-    /// (without a laser-off frame): a thing of a laser's colour, not light
-    /// ([`checks::drop_darkening`]).
-    pub darkening_points: usize,
     /// Active tiles, summed over the lasers, not searched because what stands out
     /// there is a pattern or a flat-topped patch, not a stripe (without a laser-off
     /// frame: texture in the laser's hue).
@@ -592,11 +588,8 @@ impl Extractor {
         }
         if self.local_active {
             // With a laser-off frame, a fringe is in the background too and never
-            // becomes a ridge; a stripe along a real edge would only be lost. So is a
-            // thing of a laser's colour.
+            // becomes a ridge; a stripe along a real edge would only be lost.
             self.stats.fringe_points = checks::drop_edge_fringes(&mut curves, src.frame());
-            self.stats.darkening_points =
-                checks::drop_darkening(&mut curves, src.frame(), self.lut.neutral());
         }
         if self.params.lasers.len() > 1 {
             let size = (self.detector.width, self.detector.height);
@@ -807,8 +800,8 @@ impl TileFrame for WholeFrame<'_> {
 #[cfg(test)]
 mod tests;
 #[cfg(test)]
+mod tests_activate;
+#[cfg(test)]
 mod tests_chroma;
 #[cfg(test)]
 mod tests_real;
-#[cfg(test)]
-mod tests_single_frame;
