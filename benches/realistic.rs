@@ -105,15 +105,18 @@ fn main() {
         let off = Background::from_image(sim.background());
         let local = Background::local(cam.width, cam.height);
         let black = Background::black(cam.width, cam.height);
-        // The laser-off view, noise-free and uncompressed.
-        let clean = {
+        // The laser-off view, noise-free and uncompressed: a second render, made only
+        // when its policy runs (a profile of another policy should not hold it).
+        let clean = if only.as_deref().is_none_or(|p| p == "clean") {
             let mut p = drawn.params.clone();
             p.noise_sigma = 0.0;
             p.jpeg_quality = None;
             match Simulator::new(&drawn.spec, &p) {
-                Ok(s) => Background::from_image(s.background()),
+                Ok(s) => Some(Background::from_image(s.background())),
                 Err(_) => continue,
             }
+        } else {
+            None
         };
         let min_contrast = (5.0 * drawn.params.noise_sigma).round() as u8;
         for f in 0..frames {
@@ -122,10 +125,12 @@ fn main() {
             let mut lit = vec![0u8; (cam.width * cam.height) as usize];
             sim.render_frame_into(index, &mut img, Some(&mut lit));
             megapixels += (cam.width * cam.height) as f64 / 1e6;
-            for (k, bg) in [&off, &local, &black, &clean].into_iter().enumerate() {
-                if only.as_deref().is_some_and(|p| p != policies[k]) {
+            let backgrounds = [Some(&off), Some(&local), Some(&black), clean.as_ref()];
+            for (k, bg) in backgrounds.into_iter().enumerate() {
+                let Some(bg) = bg.filter(|_| only.as_deref().is_none_or(|p| p == policies[k]))
+                else {
                     continue;
-                }
+                };
                 let mut curves = Vec::new();
                 let mut times = Vec::new();
                 for _ in 0..repeat {
